@@ -1,4 +1,4 @@
-"""The one data directory for everything varbot generates (corpora, datasets, checkpoints, database, blobs)."""
+"""The one data directory for everything varbot generates: corpora, datasets, checkpoints, database, blobs."""
 
 import os
 from pathlib import Path

@@ -1,0 +1,26 @@
+"""Simulated worlds (PyBullet, Gymnasium) and robot drivers. Importing `sim` registers the env ids."""
+
+from gymnasium.envs.registration import register, registry
+
+KUKA_BLOCKS = "varbot/KukaBlocks-v0"
+KINOVA_BLOCKS = "varbot/KinovaBlocks-v0"
+TURTLEBOT_ARENA = "varbot/TurtleBotArena-v0"
+WORLDS = {"kuka": KUKA_BLOCKS, "kinova": KINOVA_BLOCKS, "turtlebot": TURTLEBOT_ARENA}
+
+_ENTRY_POINTS = {
+    KUKA_BLOCKS: "sim.kuka_blocks:KukaBlocksEnv",
+    KINOVA_BLOCKS: "sim.kinova_blocks:KinovaBlocksEnv",
+    TURTLEBOT_ARENA: "sim.turtlebot_arena:TurtleBotArenaEnv",
+}
+
+for _env_id, _entry_point in _ENTRY_POINTS.items():
+    if _env_id not in registry:  # entry points are strings: nothing heavy is imported until make()
+        register(id=_env_id, entry_point=_entry_point)
+
+
+def world_id(world: str) -> str:
+    """The Gymnasium id of a world name ("kuka", "kinova", "turtlebot")."""
+    try:
+        return WORLDS[world]
+    except KeyError:
+        raise ValueError(f"unknown world {world!r}: choose one of {', '.join(WORLDS)}") from None
