@@ -1,0 +1,1 @@
+"""HTTP routes, all under /api/v1."""

@@ -1,0 +1,89 @@
+from typing import Annotated
+
+from fastapi import APIRouter, Query, status
+
+from backend import models, schemas
+from backend.deps import CallerDep, SessionDep
+from backend.schemas import Offset, PathId, QueryId
+from backend.services import labels, robots
+
+router = APIRouter(tags=["labels"])
+
+
+@router.get("/labels/next", response_model=schemas.NextPair)
+def next_pair(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) -> schemas.NextPair:
+    """The next (image, command) pair to ask about: never one already answered, balanced across the
+    household's commands, and (once an active model has embedded the data) the image that sits most
+    between two commands."""
+    if robot_id is not None:
+        robots.get_robot(session, caller.household_id, robot_id)
+    choice = labels.next_pair(session, caller.household_id, robot_id)
+    if choice is None:
+        return schemas.NextPair(
+            snapshot=None,
+            clip=None,
+            strategy="none",
+            message="nothing left to ask: record a command, or capture more camera views "
+            "(POST /api/v1/robots/{robot_id}/snapshots:capture)",
+        )
+    return schemas.NextPair(
+        snapshot=schemas.SnapshotPublic.model_validate(choice.snapshot),
+        clip=schemas.ClipPublic.model_validate(choice.clip),
+        strategy=choice.strategy,  # type: ignore[arg-type]
+        informativeness=choice.informativeness,
+        message="does this command describe what the robot sees?",
+    )
+
+
+@router.post("/labels", response_model=schemas.LabelPublic, status_code=status.HTTP_201_CREATED)
+def create_label(body: schemas.LabelCreate, caller: CallerDep, session: SessionDep) -> models.Label:
+    return labels.create_label(session, caller.user, body)
+
+
+@router.get("/labels", response_model=list[schemas.LabelPublic])
+def list_labels(
+    caller: CallerDep,
+    session: SessionDep,
+    snapshot_id: QueryId = None,
+    clip_id: QueryId = None,
+    labeller_id: QueryId = None,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 200,
+    offset: Offset = 0,
+) -> list[models.Label]:
+    return labels.list_labels(session, caller.household_id, snapshot_id, clip_id, labeller_id, limit, offset)
+
+
+@router.get("/labels/{label_id}", response_model=schemas.LabelDetail)
+def get_label(label_id: PathId, caller: CallerDep, session: SessionDep) -> schemas.LabelDetail:
+    label = labels.get_label(session, caller.household_id, label_id)
+    return schemas.LabelDetail.model_validate(
+        {
+            **schemas.LabelPublic.model_validate(label).model_dump(),
+            "history": [
+                schemas.LabelEventPublic.model_validate(e) for e in labels.history(session, label.id)
+            ],
+        }
+    )
+
+
+@router.put("/labels/{label_id}", response_model=schemas.LabelPublic)
+def change_label(
+    label_id: PathId, body: schemas.LabelUpdate, caller: CallerDep, session: SessionDep
+) -> models.Label:
+    return labels.change_label(
+        session, labels.get_label(session, caller.household_id, label_id), caller.user, body.verdict
+    )
+
+
+@router.delete("/labels/{label_id}", status_code=status.HTTP_204_NO_CONTENT)
+def delete_label(label_id: PathId, caller: CallerDep, session: SessionDep) -> None:
+    """Undo: the label goes, its history (who answered, who removed it, when) stays."""
+    labels.delete_label(session, labels.get_label(session, caller.household_id, label_id), caller.user)
+
+
+@router.get("/triplets/stats", response_model=schemas.TripletStats)
+def triplet_stats(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) -> schemas.TripletStats:
+    """How many triplets the labels yield, per command and per member (see backend/services/labels.py)."""
+    if robot_id is not None:
+        robots.get_robot(session, caller.household_id, robot_id)
+    return labels.triplet_stats(session, caller.household_id, robot_id)

@@ -1,0 +1,145 @@
+"""Training runs: parameters from presets, enqueued by Celery task name, cancelled through a flag."""
+
+import uuid
+from datetime import UTC, datetime
+from typing import Any
+
+from pydantic import ValidationError
+from sqlalchemy import select
+from sqlalchemy.orm import Session
+
+from backend import broker, models
+from backend.errors import Conflict, Invalid, NotFound, Unavailable
+from backend.schemas import RunCreate, RunParams, RunPublic
+from backend.services.labels import triplet_stats
+from backend.services.robots import get_robot
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "quick": dict(
+        var_epochs=5,
+        var_learning_rate=1e-4,
+        var_batch_size=64,
+        policy_steps=2_000,
+        eval_episodes=20,
+        held_out_fraction=0.2,
+        seed=0,
+    ),
+    "standard": dict(
+        var_epochs=20,
+        var_learning_rate=1e-4,
+        var_batch_size=128,
+        policy_steps=20_000,
+        eval_episodes=100,
+        held_out_fraction=0.2,
+        seed=0,
+    ),
+    "thorough": dict(
+        var_epochs=40,
+        var_learning_rate=1e-4,
+        var_batch_size=128,
+        policy_steps=100_000,
+        eval_episodes=200,
+        held_out_fraction=0.2,
+        seed=0,
+    ),
+}
+NEEDS_TRIPLETS = (models.RunKind.FINETUNE, models.RunKind.VAR_FINETUNE)
+UNFINISHED = (models.RunStatus.QUEUED, models.RunStatus.RUNNING)
+
+
+def resolve_params(preset: str, overrides: dict[str, Any]) -> RunParams:
+    try:
+        return RunParams(**(PRESETS[preset] | overrides))
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'params'}: {e['msg']}" for e in exc.errors())
+        raise Invalid(f"invalid run parameters: {problems}") from exc
+
+
+def get_run(session: Session, household_id: int, run_id: int) -> models.Run:
+    run = session.get(models.Run, run_id)
+    if run is None or run.household_id != household_id:
+        raise NotFound("run", run_id)
+    return run
+
+
+def list_runs(
+    session: Session, household_id: int, robot_id: int | None, status: str | None, limit: int, offset: int
+) -> list[models.Run]:
+    query = select(models.Run).where(models.Run.household_id == household_id)
+    if robot_id is not None:
+        query = query.where(models.Run.robot_id == robot_id)
+    if status is not None:
+        query = query.where(models.Run.status == status)
+    return list(session.scalars(query.order_by(models.Run.id.desc()).limit(limit).offset(offset)))
+
+
+def publish_run(run: models.Run) -> None:
+    """Tell live streams about a run's new state (the workers call this after each throttled update)."""
+    payload = {"type": "run", "run": RunPublic.model_validate(run).model_dump(mode="json")}
+    broker.publish(broker.run_channel(run.household_id), payload)
+
+
+def create_run(session: Session, requester: models.User, body: RunCreate, min_triplets: int) -> models.Run:
+    robot = get_robot(session, requester.household_id, body.robot_id)
+    params = resolve_params(body.preset, body.params)
+    busy = session.scalar(
+        select(models.Run.id).where(models.Run.robot_id == robot.id, models.Run.status.in_(UNFINISHED))
+    )
+    if busy is not None:
+        raise Conflict(
+            f"run {busy} is still queued or running for this robot; cancel it or wait for it to finish"
+        )
+    if body.kind in NEEDS_TRIPLETS:
+        have = triplet_stats(session, requester.household_id, robot.id).triplets
+        if have < min_triplets:
+            raise Conflict(
+                f"fine-tuning needs at least {min_triplets} triplets from this robot's labels and there "
+                f"are {have}: answer more pairs on the Label page "
+                "(each image needs one 'is' and one 'is not' answer)"
+            )
+    run = models.Run(
+        household_id=requester.household_id,
+        robot_id=robot.id,
+        kind=body.kind,
+        preset=body.preset,
+        params=params.model_dump(),
+        status=models.RunStatus.QUEUED,
+        stage="queued",
+        progress=0.0,
+        requested_by_id=requester.id,
+        task_id=uuid.uuid4().hex,
+    )
+    session.add(run)
+    session.commit()
+    try:
+        broker.send_task(
+            broker.RUN_TASKS[models.RunKind(run.kind)], {"run_id": run.id}, broker.QUEUE_TRAINING, run.task_id
+        )
+    except broker.BrokerUnavailable as exc:
+        _finish(run, models.RunStatus.FAILED, error=f"could not be queued: {exc}")
+        session.commit()
+        publish_run(run)
+        raise Unavailable(
+            f"{exc}; the run was not started (is Redis running? see GET /api/v1/health)"
+        ) from exc
+    publish_run(run)
+    return run
+
+
+def cancel_run(session: Session, run: models.Run) -> models.Run:
+    """Queued runs end at once; running ones get the flag and the worker stops at its next check."""
+    if models.RunStatus(run.status).finished:
+        raise Conflict(f"run {run.id} has already ended ({run.status})")
+    run.cancel_requested = True
+    if run.status == models.RunStatus.QUEUED:
+        _finish(run, models.RunStatus.CANCELLED)
+    session.commit()
+    publish_run(run)
+    return run
+
+
+def _finish(run: models.Run, status: models.RunStatus, error: str | None = None) -> None:
+    run.status = status
+    run.stage = status.value
+    run.error = error
+    run.finished_at = datetime.now(UTC)

@@ -1,0 +1,83 @@
+"""One settings class for the API, the CLI and the workers: `VARBOT_*` environment variables and `.env`."""
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Literal
+from urllib.parse import urlsplit
+
+from pydantic import Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from varbot.paths import data_dir
+
+DEFAULT_SECRET = "changethis"
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="VARBOT_", env_file=".env", extra="ignore")
+
+    environment: Literal["development", "test", "production"] = "development"
+    secret_key: str = DEFAULT_SECRET
+    # Empty means the embedded defaults under the data directory.
+    database_url: str = ""
+    broker_url: str = ""
+    blob_dir: str = ""
+
+    # Argon2id cost (RFC 9106 "low memory" profile by default); tests lower it to stay fast.
+    password_hash_time_cost: int = Field(default=3, ge=1)
+    password_hash_memory_kib: int = Field(default=65536, ge=8)
+    session_ttl_hours: int = Field(default=24 * 14, ge=1)
+    cookie_secure: bool = False
+    max_clip_bytes: int = 5 * 1024 * 1024
+    min_clip_seconds: float = 0.3
+    max_clip_seconds: float = 10.0
+    max_image_bytes: int = 10 * 1024 * 1024
+    max_capture_count: int = 500
+    min_triplets_for_training: int = Field(default=20, ge=0)
+    orphan_grace_seconds: int = 3600
+    sse_poll_seconds: float = 1.0
+
+    @model_validator(mode="after")
+    def _refuse_default_secrets(self) -> "Settings":
+        if self.environment == "development":
+            return self
+        if self.secret_key == DEFAULT_SECRET:
+            raise ValueError(
+                f"VARBOT_SECRET_KEY is still {DEFAULT_SECRET!r} in {self.environment}; "
+                "set it to a long random value, e.g. "
+                'python -c "import secrets; print(secrets.token_urlsafe(32))"'
+            )
+        if urlsplit(self.database_url).password == DEFAULT_SECRET:
+            raise ValueError(f"the database password in VARBOT_DATABASE_URL is still {DEFAULT_SECRET!r}")
+        return self
+
+    @property
+    def sqlalchemy_url(self) -> str:
+        if self.database_url:
+            url = self.database_url
+            # psycopg 3 is the one PostgreSQL driver we ship.
+            if url.startswith("postgresql://") or url.startswith("postgres://"):
+                url = "postgresql+psycopg://" + url.split("://", 1)[1]
+            return url
+        return f"sqlite:///{data_dir() / 'varbot.db'}"
+
+    @property
+    def celery_broker_url(self) -> str:
+        return self.broker_url or f"redis+socket://{data_dir() / 'redis' / 'redis.sock'}"
+
+    @property
+    def redis_url(self) -> str:
+        """The broker as a redis-py URL (for pub/sub and the health check)."""
+        url = self.celery_broker_url
+        if url.startswith("redis+socket://"):
+            return "unix://" + url.removeprefix("redis+socket://")
+        return url
+
+    @property
+    def blob_path(self) -> Path:
+        return Path(self.blob_dir).expanduser().resolve() if self.blob_dir else data_dir() / "blobs"
+
+
+@lru_cache
+def get_settings() -> Settings:
+    return Settings()
