@@ -1,0 +1,119 @@
+"""Training-time augmentation: batched, seeded, shape- and dtype-preserving, silence stays silence."""
+
+import numpy as np
+import pytest
+import torch
+
+from learning.audio import SILENCE
+from learning.augment import (
+    FeatureAugment,
+    WaveAugment,
+    add_noise,
+    augment_features,
+    augment_waveforms,
+    perturb_speed,
+    shift_time,
+    spec_augment,
+)
+
+
+def generator(seed: int = 0) -> torch.Generator:
+    return torch.Generator().manual_seed(seed)
+
+
+def tones(batch: int = 6, length: int = 16_000) -> torch.Tensor:
+    t = torch.arange(length) / 16_000
+    pitches = torch.linspace(150, 400, batch)[:, None]
+    return 0.5 * torch.sin(2 * torch.pi * pitches * t[None, :])
+
+
+def mfcc_batch(batch: int = 6) -> torch.Tensor:
+    features = torch.randn(batch, 100, 40, generator=generator(7)) * 5
+    features[:, 60:] = 0  # the sound ends after 60 frames
+    features[0] = torch.from_numpy(SILENCE.copy())
+    return features
+
+
+@pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
+def test_waveform_augmentation_keeps_shape_and_dtype(dtype: torch.dtype) -> None:
+    waves = tones().to(dtype)
+    augmented = augment_waveforms(waves, generator(), WaveAugment())
+    assert augmented.shape == waves.shape and augmented.dtype == dtype
+    assert torch.isfinite(augmented).all()
+    assert not torch.equal(augmented, waves)
+
+
+def test_feature_augmentation_keeps_shape_dtype_and_silence() -> None:
+    features = mfcc_batch()
+    augmented = augment_features(features, generator(), FeatureAugment())
+    assert augmented.shape == (6, 100, 40) and augmented.dtype == torch.float32
+    assert not augmented[0].any(), "the no-sound matrix must stay all zero"
+    assert not augmented[:, 70:].any(), "frames after the sound must stay silent (shift is at most 8 frames)"
+
+
+def test_augmentation_is_reproducible_for_a_seed_and_varies_across_seeds() -> None:
+    waves, features = tones(), mfcc_batch()
+    assert torch.equal(augment_waveforms(waves, generator(3)), augment_waveforms(waves, generator(3)))
+    assert not torch.equal(augment_waveforms(waves, generator(3)), augment_waveforms(waves, generator(4)))
+    assert torch.equal(augment_features(features, generator(3)), augment_features(features, generator(3)))
+
+
+def test_each_row_gets_its_own_random_draw() -> None:
+    same = tones(batch=1).repeat(8, 1)
+    augmented = augment_waveforms(same, generator())
+    assert len({round(float(row.abs().sum()), 3) for row in augmented}) == 8
+
+
+def test_speed_one_is_the_identity_and_faster_speech_ends_earlier() -> None:
+    waves = tones()
+    torch.testing.assert_close(perturb_speed(waves, generator(), (1.0, 1.0)), waves)
+    faster = perturb_speed(waves, generator(), (1.25, 1.25))
+    assert not faster[:, -3000:].any()  # 1 s played 1.25× faster lasts 0.8 s
+    spectrum = torch.fft.rfft(faster[-1, :12_000]).abs()
+    assert int(spectrum.argmax()) * 16_000 / 12_000 == pytest.approx(400 * 1.25, abs=3)
+
+
+def test_time_shift_moves_the_sound_and_fills_with_zeros() -> None:
+    waves = torch.zeros(4, 1_000)
+    waves[:, 500] = 1.0
+    shifted = shift_time(waves, generator(), max_shift=100)
+    positions = shifted.argmax(dim=1)
+    assert ((positions >= 400) & (positions <= 600)).all()
+    assert torch.equal(shifted.sum(dim=1), torch.ones(4))
+
+
+@pytest.mark.parametrize("snr_db", [0.0, 10.0, 30.0])
+def test_noise_is_added_at_the_requested_snr(snr_db: float) -> None:
+    waves = tones(batch=4)
+    noisy = add_noise(waves, generator(), (snr_db, snr_db), probability=1.0)
+    noise = noisy - waves
+    audible = waves.abs() > 1e-4  # signal power is measured where there is signal
+    signal_power = (waves**2).sum(dim=1) / audible.sum(dim=1)
+    measured = 10 * torch.log10(signal_power / (noise**2).mean(dim=1))
+    torch.testing.assert_close(measured, torch.full((4,), snr_db), atol=0.2, rtol=0)
+
+
+def test_noise_can_come_from_a_bank_of_recordings() -> None:
+    bank = torch.randn(3, 5_000, generator=generator(1))
+    noisy = add_noise(tones(batch=2), generator(), (20.0, 20.0), noise_bank=bank)
+    assert noisy.shape == (2, 16_000)
+
+
+def test_spec_augment_zeroes_whole_bands() -> None:
+    features = torch.ones(16, 100, 40)
+    masked = spec_augment(features, generator(), time_masks=1, time_mask_frames=10, coefficient_masks=1,
+                          coefficient_mask_width=5)  # fmt: skip
+    zero_frames = (masked == 0).all(dim=2).sum(dim=1)
+    zero_coefficients = (masked == 0).all(dim=1).sum(dim=1)
+    assert (zero_frames <= 10).all() and (zero_coefficients <= 5).all()
+    assert zero_frames.sum() > 0 and zero_coefficients.sum() > 0
+    assert torch.isin(masked, torch.tensor([0.0, 1.0])).all()
+
+
+def test_feature_gain_moves_only_the_energy_coefficient() -> None:
+    features = mfcc_batch()
+    config = FeatureAugment(gain_db=(6.0, 6.0), shift_frames=0, time_masks=0, coefficient_masks=0)
+    augmented = augment_features(features, generator(), config)
+    torch.testing.assert_close(augmented[1:, :60, 1:], features[1:, :60, 1:])
+    shift = augmented[1:, :60, 0] - features[1:, :60, 0]
+    np.testing.assert_allclose(shift.numpy(), 6 * np.log(10) / 10 * np.sqrt(40), rtol=1e-4)
