@@ -1,0 +1,105 @@
+"""The pieces of a run that need no worker process: the triplet rule, the refusal, divergence, the gate."""
+
+import numpy as np
+import pytest
+
+from backend import models
+from worker.evaluation import ModelScore, decide
+from worker.household import SILENCE_ROW, HouseholdData, TooFewTriplets, derive_triplets
+
+
+def test_triplets_follow_the_backends_rule_including_nothing_i_said_images() -> None:
+    commands = {1: "name:zero", 2: "name:one", 3: "name:one"}
+    answers = {
+        10: [(1, models.Verdict.IS), (2, models.Verdict.IS_NOT), (3, models.Verdict.IS_NOT)],  # 1 × 2
+        11: [(1, models.Verdict.IS_NOT), (2, models.Verdict.IS_NOT)],  # every command is "not": silence
+        12: [(1, models.Verdict.IS_NOT)],  # command "one" not asked about: no triplet yet
+        13: [(2, models.Verdict.IS)],  # no "is not": no triplet
+    }
+    assert derive_triplets(answers, commands) == [
+        (10, 1, 2),
+        (10, 1, 3),
+        (11, SILENCE_ROW, 1),
+        (11, SILENCE_ROW, 2),
+    ]
+
+
+def test_the_triplet_count_agrees_with_the_api_and_too_few_are_refused_with_how_many_more(
+    household,
+    stack,  # type: ignore[no-untyped-def]
+) -> None:
+    from backend.db import get_session_factory
+    from backend.deps import get_blob_store
+    from backend.services.labels import triplet_stats
+    from worker.household import load_household
+
+    robot_id = household.new_robot("count-arm", views=12)
+    with get_session_factory()() as session:
+        robot = session.get_one(models.Robot, robot_id)
+        expected = triplet_stats(session, robot.household_id, robot.id).triplets
+        data = load_household(session, get_blob_store(), robot, 16, "speech", 0.25, 0, min_triplets=2)
+        assert len(data.triplets) == expected
+        assert data.images.shape[1:] == (16, 16, 3) and data.features.shape[1:] == (100, 40)
+        assert data.held_out.any() and (~data.held_out).any()
+        held_snapshots = set(data.triplets[data.held_out, 0]) & set(data.triplets[~data.held_out, 0])
+        assert not held_snapshots, "held-out triplets come from images never trained on"
+        with pytest.raises(TooFewTriplets, match="5 more are needed"):
+            load_household(session, get_blob_store(), robot, 16, "speech", 0.25, 0, min_triplets=expected + 5)
+
+
+def _toy_data(features: np.ndarray) -> HouseholdData:
+    rng = np.random.default_rng(0)
+    triplets = np.array([[i % 4, i % 2, 1 - i % 2] for i in range(8)], dtype=np.int64)
+    return HouseholdData(
+        snapshot_ids=np.arange(4),
+        images=rng.integers(0, 255, (4, 16, 16, 3), dtype=np.uint8),
+        sim_heard=np.full(4, -2),
+        clip_ids=np.arange(2),
+        features=features,
+        clip_intent=np.full(2, -1),
+        triplets=triplets,
+        held_out=np.zeros(8, dtype=bool),
+        labels_used=16,
+    )
+
+
+def test_a_diverging_loss_stops_the_var_stage_with_the_step_it_happened_at(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import torch
+
+    from learning.var.checkpoint import save_var
+    from learning.var.model import VAR, VARConfig
+    from worker.var_stage import Diverged, finetune_var
+
+    init = save_var(VAR(VARConfig(image_size=16)), tmp_path / "init.pt")
+    poisoned = np.full((2, 100, 40), np.nan, dtype=np.float32)
+    with pytest.raises(Diverged, match="step 1"):
+        finetune_var(_toy_data(poisoned), init, tmp_path / "run", 2, 4, 1e-3, 0, lambda *_: False)
+    healthy = np.random.default_rng(1).normal(size=(2, 100, 40)).astype(np.float32)
+    result = finetune_var(_toy_data(healthy), init, tmp_path / "ok", 2, 4, 1e-3, 0, lambda *_: False)
+    assert result.epochs == 2 and result.checkpoint.is_file()
+    resumed = finetune_var(_toy_data(healthy), init, tmp_path / "ok", 3, 4, 1e-3, 0, lambda *_: False)
+    assert resumed.epochs == 3 and resumed.steps == 3 * 2, "a resumed stage continues from its checkpoint"
+    assert torch.load(resumed.checkpoint, weights_only=True)["kind"] == "varbot-var"
+
+
+def _score(
+    accuracy: float | None, success: float | None, triplets: int = 50, episodes: int = 40
+) -> ModelScore:
+    return ModelScore(accuracy, triplets, success, episodes if success is not None else 0)
+
+
+def test_the_gate_promotes_only_a_candidate_that_is_not_worse_on_either_measure() -> None:
+    assert decide(_score(0.90, 0.60), _score(0.80, 0.50)).promote
+    assert decide(_score(0.80, 0.50), _score(0.80, 0.50)).promote, "equal is not worse"
+    assert decide(_score(0.79, 0.50), _score(0.80, 0.50)).promote, "within one triplet's worth"
+    rejected = decide(_score(0.95, 0.40), _score(0.80, 0.50))
+    assert (
+        not rejected.promote
+        and "simulated success" in rejected.reasons[1]
+        and "(worse" in rejected.reasons[1]
+    )
+    assert not decide(_score(0.60, 0.90), _score(0.80, 0.50)).promote
+    unmeasured_sim = decide(_score(0.90, None), _score(0.80, None))
+    assert unmeasured_sim.promote and unmeasured_sim.reasons[1].endswith("not measured")
+    assert not decide(_score(None, None), _score(None, None)).promote, "nothing measured: nothing promoted"
+    assert decide(_score(0.1, 0.0), None).promote, "the first version of a robot becomes active"

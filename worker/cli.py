@@ -1,0 +1,88 @@
+"""`varbot worker --queue training|robot` and `varbot models build-base`. Heavy imports inside commands."""
+
+import os
+from enum import StrEnum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+models_app = typer.Typer(help="Base models for the simulated robots.", no_args_is_help=True)
+
+
+class Queue(StrEnum):
+    TRAINING = "training"
+    ROBOT = "robot"
+
+
+def register_worker_commands(app: typer.Typer) -> None:
+    app.command(name="worker")(worker)
+    app.add_typer(models_app, name="models")
+
+
+def celery_worker_argv(queue: Queue, concurrency: int, loglevel: str) -> list[str]:
+    """The Celery worker command line for one queue (training: one task per fresh child process)."""
+    argv = [
+        "worker",
+        "--queues", queue.value,
+        "--hostname", f"{queue.value}-{os.getpid()}@%h",
+        "--concurrency", str(concurrency),
+        "--prefetch-multiplier", "1",
+        "--loglevel", loglevel,
+        "--without-gossip", "--without-mingle",
+    ]  # fmt: skip
+    if queue == Queue.TRAINING:
+        argv += ["--max-tasks-per-child", "1"]
+    return argv
+
+
+def worker(
+    queue: Annotated[Queue, typer.Option(help="which queue this worker consumes")] = Queue.TRAINING,
+    concurrency: Annotated[int, typer.Option(min=1, help="tasks at once (training: keep 1 per machine)")] = 1,
+    loglevel: Annotated[str, typer.Option(help="Celery log level")] = "info",
+) -> None:
+    """Run a Celery worker: `training` (fine-tuning runs, one at a time) or `robot` (snapshot capture)."""
+    import logging
+
+    logging.basicConfig(level=loglevel.upper(), format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    from worker.celery_app import app
+
+    app.worker_main(celery_worker_argv(queue, concurrency, loglevel))
+
+
+@models_app.command("build-base")
+def build_base(
+    world: Annotated[str, typer.Option(help="kuka, kinova or turtlebot")] = "kuka",
+    sounds: Annotated[str, typer.Option(help="sound corpus (built with `varbot sounds build`)")] = "wordset",
+    views: Annotated[int, typer.Option(min=100, help="random views collected for VAR triplets")] = 20_000,
+    image_size: Annotated[int, typer.Option(help="camera image size (pixels)")] = 96,
+    var_epochs: Annotated[int, typer.Option(min=1)] = 12,
+    policy_steps: Annotated[int, typer.Option(min=800, help="PPO environment steps")] = 300_000,
+    eval_episodes_per_intent: Annotated[int, typer.Option(min=1)] = 25,
+    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+    seed: Annotated[int, typer.Option()] = 0,
+) -> None:
+    """Train the base VAR + policy for one simulated world with the project's own trainers and record how."""
+    import json
+
+    from varbot.paths import data_dir
+    from worker.base_models import build_base as build
+
+    record = build(
+        world, sounds, views, image_size, var_epochs, policy_steps, eval_episodes_per_intent,
+        out or data_dir() / "base_models", seed=seed,
+    )  # fmt: skip
+    typer.echo(json.dumps(record, indent=2))
+
+
+@models_app.command("show")
+def show() -> None:
+    """Which base model each simulated world would start from."""
+    from worker.base_models import BaseModelMissing, find_base
+
+    for world in ("kuka", "kinova", "turtlebot"):
+        try:
+            base = find_base(world)
+            typer.echo(f"{world}: {base.folder} ({base.record.get('built_at', 'no record')})")
+        except BaseModelMissing as missing:
+            typer.echo(f"{world}: {missing}")

@@ -1,0 +1,101 @@
+"""Stage 2: the policy improves itself with the intrinsic reward only (paper, Sec. IV-D): PPO continues from
+the parent policy, the VAR (fine-tuned or the parent's) frozen, goals sampled from the household's own clips.
+
+`learning.rl.run.train_run` does the work (environments in subprocesses, checkpoints that resume exactly);
+this module builds its configuration as `learning.rl.improve` does, plus the cancel/progress hook."""
+
+import dataclasses
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from worker.household import HouseholdData
+
+
+@dataclass
+class PolicyImproveResult:
+    checkpoint: Path
+    env_steps: int
+    updates: int
+    recent_success: float | None
+    summary: dict[str, Any]
+
+
+def goal_bank(data: HouseholdData, num_intents: int = 4):  # type: ignore[no-untyped-def]
+    """The household's clips as goals. With an inferred intent for every intent of the world, each episode's
+    goal names the world's target (so the training success rate means something); otherwise goals are drawn
+    uniformly — the intrinsic reward never reads the intent either way."""
+    from learning.rl.rewards import ClipBank
+
+    known = set(data.clip_intent[data.clip_intent >= 0].tolist())
+    covered = known >= set(range(num_intents))
+    intents = data.clip_intent if covered else np.full(len(data.clip_intent), -1, dtype=np.int64)
+    rows = np.flatnonzero(data.clip_intent >= 0) if covered else np.arange(len(data.clip_intent))
+    return ClipBank(data.features[rows], intents[rows])
+
+
+def improve_policy(
+    data: HouseholdData,
+    policy_checkpoint: Path,
+    var_checkpoint: Path,
+    steps: int,
+    work_dir: Path,
+    seed: int,
+    on_update: Callable[[float, dict[str, Any]], bool],
+) -> PolicyImproveResult:
+    from learning.rl.ppo import PPOConfig, read_policy_checkpoint
+    from learning.rl.run import train_run
+
+    base = PPOConfig.from_dict(read_policy_checkpoint(policy_checkpoint)["config"])
+    if base.goal_encoder != "var":
+        raise ValueError(f"{policy_checkpoint} was not trained with the VAR; it cannot improve itself")
+    steps = max(int(steps), base.batch_size)  # at least one PPO update
+    config = dataclasses.replace(
+        base,
+        total_steps=steps,
+        learning_rate=base.learning_rate / 3,
+        goal_split="household",
+        seed=seed,
+        current_sound=False,
+    )
+    updates_total = config.num_updates
+
+    def hook(record: dict[str, Any]) -> bool:
+        point = {
+            "update": record["update"],
+            "env_steps": record["global_step"],
+            "episode_return": _number(record.get("episode_return")),
+            "recent_success": _number(record.get("recent_success")),
+            "sps": _number(record.get("sps")),
+        }
+        return on_update(record["update"] / updates_total, point)
+
+    summary = train_run(
+        config,
+        work_dir,
+        var_checkpoint,
+        goals=goal_bank(data),
+        init_policy=policy_checkpoint,
+        resume=True,
+        progress=False,
+        on_update=hook,
+    )
+    if int(summary["updates"]) < updates_total:
+        from worker.progress import Cancelled
+
+        raise Cancelled("cancel requested during the policy self-improvement")
+    return PolicyImproveResult(
+        checkpoint=work_dir / "checkpoint.pt",
+        env_steps=int(summary["env_steps"]),
+        updates=int(summary["updates"]),
+        recent_success=_number(summary.get("recent_success")),
+        summary=summary,
+    )
+
+
+def _number(value: Any) -> float | None:
+    return float(value) if isinstance(value, int | float) and math.isfinite(value) else None

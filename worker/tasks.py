@@ -1,0 +1,78 @@
+"""The Celery tasks, named as `backend/broker.py` says. Each is a thin call into `worker.pipeline` /
+`worker.capture`; torch and pybullet are imported inside them, never at worker start-up."""
+
+import logging
+
+from celery import Task
+
+from backend import broker
+from backend.models import RunKind
+from worker.celery_app import (
+    CAPTURE_HARD_LIMIT_S,
+    CAPTURE_SOFT_LIMIT_S,
+    TRAINING_HARD_LIMIT_S,
+    TRAINING_SOFT_LIMIT_S,
+    app,
+)
+
+logger = logging.getLogger(__name__)
+
+_TRAINING = dict(
+    bind=True,
+    acks_late=True,
+    reject_on_worker_lost=True,
+    soft_time_limit=TRAINING_SOFT_LIMIT_S,
+    time_limit=TRAINING_HARD_LIMIT_S,
+    queue=broker.QUEUE_TRAINING,
+)
+
+
+def _run(task: Task, run_id: int) -> str:
+    from worker.pipeline import execute_run
+
+    outcome = execute_run(int(run_id))
+    logger.info("%s: %s", task.name, outcome)
+    return outcome
+
+
+@app.task(name=broker.RUN_TASKS[RunKind.FINETUNE], **_TRAINING)
+def finetune(self: Task, run_id: int) -> str:
+    """VAR fine-tune → policy self-improvement → evaluation → promotion gate."""
+    return _run(self, run_id)
+
+
+@app.task(name=broker.RUN_TASKS[RunKind.VAR_FINETUNE], **_TRAINING)
+def var_finetune(self: Task, run_id: int) -> str:
+    """VAR fine-tune only (the parent's policy is kept) → evaluation → promotion gate."""
+    return _run(self, run_id)
+
+
+@app.task(name=broker.RUN_TASKS[RunKind.POLICY_IMPROVE], **_TRAINING)
+def policy_improve(self: Task, run_id: int) -> str:
+    """Policy self-improvement with the active VAR → evaluation → promotion gate."""
+    return _run(self, run_id)
+
+
+@app.task(name=broker.RUN_TASKS[RunKind.EVALUATE], **_TRAINING)
+def evaluate(self: Task, run_id: int) -> str:
+    """Score the newest candidate against the active version and apply the promotion gate (or, with no
+    candidate, score the active version)."""
+    return _run(self, run_id)
+
+
+@app.task(
+    name=broker.TASK_CAPTURE_SNAPSHOTS,
+    bind=True,
+    acks_late=True,
+    reject_on_worker_lost=True,
+    soft_time_limit=CAPTURE_SOFT_LIMIT_S,
+    time_limit=CAPTURE_HARD_LIMIT_S,
+    queue=broker.QUEUE_ROBOT,
+)
+def capture_snapshots(self: Task, robot_id: int, household_id: int, count: int) -> dict:
+    """Render `count` camera views from random poses of a simulated robot into snapshots."""
+    from worker.capture import capture_views
+
+    result = capture_views(robot_id, household_id, count, task_id=self.request.id)
+    logger.info("captured %s views for robot %s", result["created"], robot_id)
+    return {k: v for k, v in result.items() if k != "snapshot_ids"}

@@ -1,0 +1,163 @@
+"""Stage 1: fine-tune the VAR on the household's own triplets (their voices, their room).
+
+Explicit triplets from pair labels (see `worker.household`), the paper's triplet loss, Adam, the VAR trainer's
+augmentations (sound: `learning.augment.augment_features`; image: shift + brightness/contrast). A checkpoint
+with the optimiser and RNG state is written after every epoch, so a killed worker resumes where it stopped;
+the weights with the best held-out triplet accuracy are kept.
+"""
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from learning.var.checkpoint import load_var, read_checkpoint, save_var
+from learning.var.model import VAR
+from worker.household import SILENCE_ROW, HouseholdData
+
+
+class Diverged(RuntimeError):
+    """The loss became NaN or infinite."""
+
+
+@dataclass
+class VarFinetuneResult:
+    checkpoint: Path
+    epochs: int
+    steps: int
+    train_triplets: int
+    held_out_triplets: int
+    best_held_out_accuracy: float | None
+    seconds: float
+
+
+def sound_batch(data: HouseholdData, rows: np.ndarray) -> torch.Tensor:
+    """MFCC features for clip rows, silence (all zeros) for SILENCE_ROW."""
+    out = np.zeros((len(rows), *data.features.shape[1:]), dtype=np.float32)
+    spoken = rows != SILENCE_ROW
+    out[spoken] = data.features[rows[spoken]]
+    return torch.from_numpy(out)
+
+
+@torch.inference_mode()
+def triplet_accuracy(var: VAR, data: HouseholdData, triplets: np.ndarray) -> float | None:
+    """Share of triplets with ‖v_i − v+‖ < ‖v_i − v−‖ (None when there are none)."""
+    if len(triplets) == 0:
+        return None
+    var.eval()
+    anchor = var.encode_image(torch.from_numpy(data.images[triplets[:, 0]]))
+    positive = var.encode_sound(sound_batch(data, triplets[:, 1]))
+    negative = var.encode_sound(sound_batch(data, triplets[:, 2]))
+    closer = (anchor - positive).pow(2).sum(1) < (anchor - negative).pow(2).sum(1)
+    return float(closer.float().mean())
+
+
+def finetune_var(
+    data: HouseholdData,
+    init_checkpoint: Path,
+    work_dir: Path,
+    epochs: int,
+    batch_size: int,
+    learning_rate: float,
+    seed: int,
+    on_epoch: Callable[[float, dict[str, Any]], bool],
+    margin: float = 1.0,
+) -> VarFinetuneResult:
+    """`on_epoch(fraction, record)` after every epoch; returning True stops (cancel) after the checkpoint."""
+    from learning.augment import augment_features
+    from learning.var.image_augment import augment_images
+    from learning.var.loss import triplet_loss
+
+    work_dir.mkdir(parents=True, exist_ok=True)
+    last, best = work_dir / "last.pt", work_dir / "best.pt"
+    init_payload = read_checkpoint(init_checkpoint)
+    var = load_var(init_checkpoint)
+    optimizer = torch.optim.Adam(var.parameters(), lr=learning_rate)
+    generator = torch.Generator().manual_seed(seed)
+    state = {"epoch": 0, "step": 0, "best": None, "seconds": 0.0}
+    if last.is_file():
+        payload = read_checkpoint(last)
+        var.load_state_dict(payload["state_dict"])
+        optimizer.load_state_dict(payload["training"]["optimizer"])
+        generator.set_state(payload["training"]["generator"])
+        state = {k: payload["training"][k] for k in state}
+    train, test = data.train_triplets, data.test_triplets
+    if state["best"] is None and not best.is_file():
+        state["best"] = triplet_accuracy(var, data, test)
+        _save(var, best, init_payload, state, optimizer, generator)
+    started = time.perf_counter()
+    while state["epoch"] < epochs:
+        var.train()
+        order = np.random.default_rng([seed, 21, state["epoch"]]).permutation(len(train))
+        losses = []
+        for start in range(0, len(train), batch_size):
+            rows = train[order[start : start + batch_size]]
+            if len(rows) < 2:  # batch norm cannot train on a single image
+                continue
+            images = augment_images(torch.from_numpy(data.images[rows[:, 0]]), generator)
+            sounds = augment_features(
+                torch.cat([sound_batch(data, rows[:, 1]), sound_batch(data, rows[:, 2])]), generator
+            )
+            positive, negative = var.encode_sound(sounds).split(len(rows))
+            loss = triplet_loss(var.encode_image(images), positive, negative, margin)
+            if not torch.isfinite(loss):
+                raise Diverged(f"the triplet loss became {loss.item()} at step {state['step'] + 1}")
+            optimizer.zero_grad(set_to_none=True)
+            loss.backward()
+            optimizer.step()
+            losses.append(float(loss.detach()))
+            state["step"] += 1
+        state["epoch"] += 1
+        held_out = triplet_accuracy(var, data, test)
+        if held_out is not None and (state["best"] is None or held_out >= state["best"]):
+            state["best"] = held_out
+            _save(var, best, init_payload, state, optimizer, generator)
+        state["seconds"] += time.perf_counter() - started
+        started = time.perf_counter()
+        _save(var, last, init_payload, state, optimizer, generator)
+        record = {
+            "epoch": state["epoch"],
+            "step": state["step"],
+            "loss": float(np.mean(losses)),
+            "held_out_accuracy": held_out,
+        }
+        if on_epoch(state["epoch"] / epochs, record):
+            from worker.progress import Cancelled
+
+            raise Cancelled("cancel requested during the VAR fine-tune")
+    chosen = best if len(test) and best.is_file() else last
+    final = work_dir / "final.pt"
+    payload = read_checkpoint(chosen)
+    payload.pop("training", None)
+    torch.save(payload, final)
+    return VarFinetuneResult(
+        checkpoint=final,
+        epochs=state["epoch"],
+        steps=state["step"],
+        train_triplets=len(train),
+        held_out_triplets=len(test),
+        best_held_out_accuracy=state["best"],
+        seconds=state["seconds"],
+    )
+
+
+def _save(
+    var: VAR,
+    path: Path,
+    init_payload: dict[str, Any],
+    state: dict[str, Any],
+    optimizer: torch.optim.Optimizer,
+    generator: torch.Generator,
+) -> None:
+    keep = {k: init_payload[k] for k in ("manifest_hash", "sound_set", "world") if k in init_payload}
+    save_var(
+        var,
+        path,
+        **keep,
+        finetuned_on="household triplets",
+        training={**state, "optimizer": optimizer.state_dict(), "generator": generator.get_state()},
+    )
