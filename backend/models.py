@@ -183,12 +183,16 @@ class Clip(Base):
     channels: Mapped[int] = mapped_column(Integer)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     deleted_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    # How many labels name this clip; kept by database triggers on `labels` (migration 0002).
+    label_count: Mapped[int] = mapped_column(Integer, default=0, server_default=text("0"))
 
 
 class Snapshot(Base):
     """One robot camera image (PNG in the blob store) with the robot state at that moment."""
 
     __tablename__ = "snapshots"
+    # The asking order of GET /labels/next: most-answered images first (see backend/services/labels.py).
+    __table_args__ = (Index("ix_snapshots_asking_order", "household_id", "label_count", "id"),)
 
     id: Mapped[int] = mapped_column(primary_key=True)
     household_id: Mapped[int] = mapped_column(ForeignKey("households.id", ondelete="CASCADE"), index=True)
@@ -201,6 +205,8 @@ class Snapshot(Base):
     meta: Mapped[dict[str, Any]] = mapped_column(JSON, default=dict)
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     deleted_at: Mapped[datetime | None] = mapped_column(UTCDateTime)
+    # How many labels this image has; kept by database triggers on `labels` (migration 0002).
+    label_count: Mapped[int] = mapped_column(Integer, default=0, server_default=text("0"))
 
 
 class Label(Base):

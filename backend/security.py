@@ -1,9 +1,13 @@
-"""Passwords (Argon2), session tokens (random, stored only as an HMAC) and CSRF tokens."""
+"""Passwords (Argon2), session tokens (random, stored only as an HMAC), CSRF tokens, and the short-lived
+cache of sign-in lookups."""
 
 import hashlib
 import hmac
 import secrets
+import threading
+import time
 from functools import lru_cache
+from typing import Any
 
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
@@ -49,3 +53,53 @@ def token_digest(token: str, secret_key: str) -> str:
 
 def same_token(a: str, b: str) -> bool:
     return hmac.compare_digest(a.encode(), b.encode())
+
+
+class SignedInCache:
+    """Recent sign-in lookups (token HMAC → who), so that a busy client is not looked up on every request.
+
+    Entries live `ttl_s` seconds. Signing out, a role change, deactivation and a password reset forget the
+    affected entries in this process at once (after their commit); a lookup that raced with such a change is
+    not kept. Another API process (`--workers N`) or the CLI sees such a change within `ttl_s` at the latest.
+    """
+
+    def __init__(self, ttl_s: float = 2.0, max_entries: int = 10_000) -> None:
+        self.ttl_s, self.max_entries = ttl_s, max_entries
+        self._entries: dict[tuple[str, str], tuple[float, Any]] = {}
+        self._lock = threading.Lock()
+        self.generation = 0  # bumped by every forget: a lookup that started before one is not remembered
+
+    def get(self, token_hash: str, kind: str) -> Any | None:
+        found = self._entries.get((token_hash, kind))
+        if found is None or found[0] < time.monotonic():
+            return None
+        return found[1]
+
+    def remember(self, token_hash: str, kind: str, value: Any, generation: int) -> None:
+        with self._lock:
+            if generation != self.generation:
+                return
+            if len(self._entries) >= self.max_entries:
+                now = time.monotonic()
+                self._entries = {key: entry for key, entry in self._entries.items() if entry[0] >= now}
+                while len(self._entries) >= self.max_entries:
+                    del self._entries[next(iter(self._entries))]
+            self._entries[(token_hash, kind)] = (time.monotonic() + self.ttl_s, value)
+
+    def forget(self, *, user_id: int | None = None, auth_session_id: int | None = None) -> None:
+        """Drops the entries of one member (all their sessions) or of one session."""
+        with self._lock:
+            self.generation += 1
+            self._entries = {
+                key: entry
+                for key, entry in self._entries.items()
+                if entry[1].user_id != user_id and entry[1].auth_session_id != auth_session_id
+            }
+
+    def clear(self) -> None:
+        with self._lock:
+            self.generation += 1
+            self._entries.clear()
+
+
+signed_in_cache = SignedInCache()

@@ -372,6 +372,7 @@ def main() -> None:
     parser.add_argument("--upload-clients", type=int, default=10)
     parser.add_argument("--upload-seconds", type=float, default=10.0)
     args = parser.parse_args()
+    load_at_start = os.getloadavg()
     results = {db: measure(db, args) for db in args.databases}
     table = Table(title=f"API under load ({args.clients} clients, 127.0.0.1, one uvicorn process)")
     for column in (
@@ -403,8 +404,9 @@ def main() -> None:
         )
     console.print(table)
     payload = {
-        "command": "nice -n 10 .venv/bin/python bench/api_load.py " + " ".join(sys.argv[1:]),
+        "command": f"nice -n {os.nice(0)} .venv/bin/python bench/api_load.py " + " ".join(sys.argv[1:]),
         "machine": f"{os.cpu_count()} CPU cores, shared with other agents' jobs while measured",
+        "load_average_at_start": load_at_start,
         "load_average_at_end": os.getloadavg(),
         "goals": {"label_round_trips_per_s": 300, "label_p99_ms": 100, "uploads_per_s": 30, "rss_mb": 300},
         "settings": vars(args),

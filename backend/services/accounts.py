@@ -8,7 +8,7 @@ from sqlalchemy.orm import Session
 from backend import models
 from backend.errors import Conflict, Forbidden, NotFound
 from backend.schemas import MemberCreate, MemberUpdate, MeUpdate
-from backend.security import hash_password, new_token, token_digest, verify_password
+from backend.security import hash_password, new_token, signed_in_cache, token_digest, verify_password
 
 
 def create_household(session: Session, name: str) -> models.Household:
@@ -67,6 +67,7 @@ def open_session(
 def close_session(session: Session, auth_session: models.AuthSession) -> None:
     session.delete(auth_session)
     session.commit()
+    signed_in_cache.forget(auth_session_id=auth_session.id)
 
 
 def list_members(session: Session, household_id: int) -> list[models.User]:
@@ -116,6 +117,7 @@ def update_member(session: Session, member: models.User, body: MemberUpdate) -> 
     if body.password is not None or body.is_active is False:
         session.execute(delete(models.AuthSession).where(models.AuthSession.user_id == member.id))
     session.commit()
+    signed_in_cache.forget(user_id=member.id)  # a new role, or no more sessions
     return member
 
 

@@ -10,17 +10,16 @@ import random
 from collections import Counter, defaultdict
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from typing import Any
 
 import numpy as np
-from sqlalchemy import and_, exists, func, select
+from sqlalchemy import Select, and_, bindparam, exists, insert, select
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from backend import models
 from backend.errors import Conflict, NotFound
-from backend.schemas import LabelCreate, TripletCount, TripletStats
-from backend.services.clips import get_clip
-from backend.services.snapshots import get_snapshot
+from backend.schemas import ClipPublic, LabelCreate, SnapshotPublic, TripletCount, TripletStats
 
 SILENCE = "silence"
 _TOP_CANDIDATES = 8  # concurrent labellers of one household get different pairs instead of racing for one
@@ -64,9 +63,7 @@ def history(session: Session, label_id: int) -> list[models.LabelEvent]:
     return list(session.scalars(query))
 
 
-def _record(
-    session: Session, label: models.Label, action: str, user: models.User, verdict: str | None
-) -> None:
+def _record(session: Session, label: models.Label, action: str, user_id: int, verdict: str | None) -> None:
     session.add(
         models.LabelEvent(
             household_id=label.household_id,
@@ -75,100 +72,165 @@ def _record(
             clip_id=label.clip_id,
             action=action,
             verdict=verdict,
-            user_id=user.id,
+            user_id=user_id,
         )
     )
 
 
-def create_label(session: Session, user: models.User, body: LabelCreate) -> models.Label:
-    snapshot = get_snapshot(session, user.household_id, body.snapshot_id, include_deleted=False)
-    clip = get_clip(session, user.household_id, body.clip_id, include_deleted=False)
-    existing = session.scalar(
-        select(models.Label.id).where(
-            models.Label.snapshot_id == snapshot.id, models.Label.clip_id == clip.id
-        )
+# The hot path (every answer) runs prebuilt Core statements: no ORM objects, one statement per question.
+_PAIR_STATE = select(
+    select(models.Snapshot.id)
+    .where(
+        models.Snapshot.id == bindparam("snapshot_id"),
+        models.Snapshot.household_id == bindparam("household_id"),
+        models.Snapshot.deleted_at.is_(None),
     )
+    .scalar_subquery(),
+    select(models.Clip.id)
+    .where(
+        models.Clip.id == bindparam("clip_id"),
+        models.Clip.household_id == bindparam("household_id"),
+        models.Clip.deleted_at.is_(None),
+    )
+    .scalar_subquery(),
+    select(models.Label.id)
+    .where(models.Label.snapshot_id == bindparam("snapshot_id"), models.Label.clip_id == bindparam("clip_id"))
+    .scalar_subquery(),
+)
+_INSERT_LABEL = insert(models.Label).returning(models.Label.id)
+_INSERT_EVENT = insert(models.LabelEvent)
+
+
+def create_label(session: Session, user_id: int, household_id: int, body: LabelCreate) -> dict[str, Any]:
+    """Answers one pair; returns the new label's public fields. Label counts follow by trigger (0002)."""
+    pair = {"snapshot_id": body.snapshot_id, "clip_id": body.clip_id}
+    connection = session.connection()
+    snapshot_id, clip_id, existing = connection.execute(
+        _PAIR_STATE, {**pair, "household_id": household_id}
+    ).one()
+    if snapshot_id is None:
+        raise NotFound("snapshot", body.snapshot_id)
+    if clip_id is None:
+        raise NotFound("clip", body.clip_id)
     if existing is not None:
         raise Conflict(
             f"this pair is already answered (label {existing}); change it with PUT /labels/{existing}"
         )
     now = datetime.now(UTC)
-    label = models.Label(
-        household_id=user.household_id,
-        snapshot_id=snapshot.id,
-        clip_id=clip.id,
-        verdict=body.verdict,
-        labeller_id=user.id,
-        updated_by_id=user.id,
-        created_at=now,
-        updated_at=now,
-    )
-    session.add(label)
+    label = {
+        **pair,
+        "verdict": body.verdict.value,
+        "labeller_id": user_id,
+        "created_at": now,
+        "updated_at": now,
+        "updated_by_id": user_id,
+    }
     try:
-        session.flush()
+        label_id = connection.execute(_INSERT_LABEL, {**label, "household_id": household_id}).scalar_one()
     except IntegrityError as exc:  # answered by someone else a moment ago
         session.rollback()
         raise Conflict("this pair was just answered by someone else; fetch the next pair") from exc
-    _record(session, label, "created", user, label.verdict)
+    connection.execute(
+        _INSERT_EVENT,
+        {
+            **pair,
+            "household_id": household_id,
+            "label_id": label_id,
+            "action": "created",
+            "verdict": label["verdict"],
+            "user_id": user_id,
+            "at": now,
+        },
+    )
     session.commit()
-    return label
+    return {"id": label_id, **label}
 
 
-def change_label(session: Session, label: models.Label, user: models.User, verdict: str) -> models.Label:
+def change_label(session: Session, label: models.Label, user_id: int, verdict: str) -> models.Label:
     if label.verdict != verdict:
         label.verdict = verdict
         label.updated_at = datetime.now(UTC)
-        label.updated_by_id = user.id
-        _record(session, label, "changed", user, verdict)
+        label.updated_by_id = user_id
+        _record(session, label, "changed", user_id, verdict)
         session.commit()
     return label
 
 
-def delete_label(session: Session, label: models.Label, user: models.User) -> None:
-    _record(session, label, "deleted", user, None)
+def delete_label(session: Session, label: models.Label, user_id: int) -> None:
+    _record(session, label, "deleted", user_id, None)
     session.delete(label)
     session.commit()
 
 
 # --- which pair next ----------------------------------------------------------------------------------------
 
+_SNAPSHOT_COLUMNS = [getattr(models.Snapshot, name) for name in SnapshotPublic.model_fields]
+_CLIP_COLUMNS = [getattr(models.Clip, name) for name in ClipPublic.model_fields]
+
 
 @dataclass(frozen=True)
 class PairChoice:
-    snapshot: models.Snapshot
-    clip: models.Clip
+    snapshot: dict[str, Any]  # the fields of SnapshotPublic
+    clip: dict[str, Any]  # the fields of ClipPublic
     strategy: str
     informativeness: float | None = None
 
 
-def _live_snapshots(household_id: int, robot_id: int | None):  # type: ignore[no-untyped-def]
-    query = select(models.Snapshot.id).where(
-        models.Snapshot.household_id == household_id, models.Snapshot.deleted_at.is_(None)
-    )
-    return query if robot_id is None else query.where(models.Snapshot.robot_id == robot_id)
+@dataclass(frozen=True)
+class _Command:
+    clip_id: int
+    name: str | None
 
 
-def _clips_in_asking_order(session: Session, household_id: int) -> list[models.Clip]:
+_LIVE_CLIPS = select(models.Clip.id, models.Clip.name, models.Clip.label_count).where(
+    models.Clip.household_id == bindparam("household_id"), models.Clip.deleted_at.is_(None)
+)
+
+
+def _clips_in_asking_order(session: Session, household_id: int) -> list[_Command]:
     """Least-answered command first, and within it the least-answered clip: balanced across commands."""
-    clips = list(
-        session.scalars(
-            select(models.Clip).where(
-                models.Clip.household_id == household_id, models.Clip.deleted_at.is_(None)
-            )
-        )
-    )
-    counts = dict(
-        session.execute(
-            select(models.Label.clip_id, func.count())
-            .where(models.Label.household_id == household_id)
-            .group_by(models.Label.clip_id)
-        ).all()
-    )
+    rows = session.connection().execute(_LIVE_CLIPS, {"household_id": household_id}).all()
     per_command: Counter[str] = Counter()
-    for clip in clips:
-        per_command[command_key(clip.id, clip.name)] += counts.get(clip.id, 0)
-    random.shuffle(clips)  # ties are broken at random
-    return sorted(clips, key=lambda c: (per_command[command_key(c.id, c.name)], counts.get(c.id, 0)))
+    for clip_id, name, answered in rows:
+        per_command[command_key(clip_id, name)] += answered
+    random.shuffle(rows)  # ties are broken at random
+    rows.sort(key=lambda row: (per_command[command_key(row[0], row[1])], row[2]))
+    return [_Command(clip_id, name) for clip_id, name, _ in rows]
+
+
+def _candidates(robot: bool) -> Select[Any]:
+    """Live images not yet answered for one clip, most-answered first (answering every command about one
+    image completes its triplets). Only (count, id): the database sorts the ties of one count by id."""
+    query = (
+        select(models.Snapshot.label_count, models.Snapshot.id)
+        .where(
+            models.Snapshot.household_id == bindparam("household_id"),
+            models.Snapshot.deleted_at.is_(None),
+            ~exists().where(
+                models.Label.snapshot_id == models.Snapshot.id, models.Label.clip_id == bindparam("clip_id")
+            ),
+        )
+        .order_by(models.Snapshot.label_count.desc(), models.Snapshot.id)
+        .limit(_TOP_CANDIDATES)
+    )
+    return query.where(models.Snapshot.robot_id == bindparam("robot_id")) if robot else query
+
+
+_CANDIDATES = {robot: _candidates(robot) for robot in (False, True)}
+_PAIR = (
+    select(*_SNAPSHOT_COLUMNS, *(column.label(f"clip_{column.key}") for column in _CLIP_COLUMNS))
+    .join(models.Clip, models.Clip.id == bindparam("clip_id"))
+    .where(models.Snapshot.id == bindparam("snapshot_id"))
+)
+
+
+def _pair(session: Session, snapshot_id: int, clip_id: int) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The public fields of one snapshot and one clip, in one query."""
+    row = session.connection().execute(_PAIR, {"snapshot_id": snapshot_id, "clip_id": clip_id}).one()
+    split = len(_SNAPSHOT_COLUMNS)
+    snapshot = dict(zip(SnapshotPublic.model_fields, row[:split], strict=True))
+    clip = dict(zip(ClipPublic.model_fields, row[split:], strict=True))
+    return snapshot, clip
 
 
 def next_pair(session: Session, household_id: int, robot_id: int | None) -> PairChoice | None:
@@ -178,38 +240,39 @@ def next_pair(session: Session, household_id: int, robot_id: int | None) -> Pair
     informative = _informative_pair(session, household_id, robot_id, clips)
     if informative is not None:
         return informative
-    label_count = (
-        select(func.count()).where(models.Label.snapshot_id == models.Snapshot.id).correlate(models.Snapshot)
-    ).scalar_subquery()
+    connection = session.connection()
     for clip in clips:
-        # Prefer images already partly answered: asking every command about one image completes its triplets.
-        unanswered = _live_snapshots(household_id, robot_id).where(
-            ~exists().where(models.Label.snapshot_id == models.Snapshot.id, models.Label.clip_id == clip.id)
-        )
-        rows = session.execute(
-            unanswered.add_columns(label_count)
-            .order_by(label_count.desc(), models.Snapshot.id)
-            .limit(_TOP_CANDIDATES)
+        rows = connection.execute(
+            _CANDIDATES[robot_id is not None],
+            {"household_id": household_id, "clip_id": clip.clip_id, "robot_id": robot_id},
         ).all()
         if rows:
-            best = rows[0][1]
-            snapshot_id = random.choice([row[0] for row in rows if row[1] == best])
-            return PairChoice(session.get_one(models.Snapshot, snapshot_id), clip, "balanced")
+            best = rows[0][0]
+            snapshot_id = random.choice([row[1] for row in rows if row[0] == best])
+            return PairChoice(*_pair(session, snapshot_id, clip.clip_id), "balanced")
     return None
 
 
+def _active_models(robot: bool) -> Select[Any]:
+    query = select(models.ModelVersion.id, models.ModelVersion.robot_id).where(
+        models.ModelVersion.household_id == bindparam("household_id"),
+        models.ModelVersion.status == models.ModelStatus.ACTIVE,
+    )
+    return query.where(models.ModelVersion.robot_id == bindparam("robot_id")) if robot else query
+
+
+_ACTIVE_MODELS = {robot: _active_models(robot) for robot in (False, True)}
+
+
 def _informative_pair(
-    session: Session, household_id: int, robot_id: int | None, clips: list[models.Clip]
+    session: Session, household_id: int, robot_id: int | None, clips: list[_Command]
 ) -> PairChoice | None:
     """Once an active model has embedded the household's data: the unanswered (image, clip) whose image
     sits most nearly between the clip's command cluster and another command's cluster on the sphere."""
-    active = select(models.ModelVersion.id, models.ModelVersion.robot_id).where(
-        models.ModelVersion.household_id == household_id,
-        models.ModelVersion.status == models.ModelStatus.ACTIVE,
+    active = session.connection().execute(
+        _ACTIVE_MODELS[robot_id is not None], {"household_id": household_id, "robot_id": robot_id}
     )
-    if robot_id is not None:
-        active = active.where(models.ModelVersion.robot_id == robot_id)
-    for model_id, model_robot_id in session.execute(active).all():
+    for model_id, model_robot_id in active.all():
         clip_vectors = dict(
             session.execute(
                 select(models.Embedding.clip_id, models.Embedding.vector).where(
@@ -219,8 +282,8 @@ def _informative_pair(
         )
         groups: dict[str, list[list[float]]] = defaultdict(list)
         for clip in clips:
-            if clip.id in clip_vectors:
-                groups[command_key(clip.id, clip.name)].append(clip_vectors[clip.id])
+            if clip.clip_id in clip_vectors:
+                groups[command_key(clip.clip_id, clip.name)].append(clip_vectors[clip.clip_id])
         if len(groups) < 2:
             continue
         keys = list(groups)
@@ -246,9 +309,9 @@ def _informative_pair(
                 )
             ).all()
         )
-        best: tuple[float, int, models.Clip] | None = None
+        best: tuple[float, int, int] | None = None
         for clip in clips:
-            key = command_key(clip.id, clip.name)
+            key = command_key(clip.clip_id, clip.name)
             if key not in groups:
                 continue
             column = keys.index(key)
@@ -256,12 +319,13 @@ def _informative_pair(
             # 1 when the image is as close to this command as to its nearest rival, 0 at opposite poles.
             score = 1.0 - np.abs(similarity[:, column] - others) / 2.0
             for index in np.argsort(-score)[: _TOP_CANDIDATES * 4]:
-                if (int(snapshot_ids[index]), clip.id) not in answered:
+                if (int(snapshot_ids[index]), clip.clip_id) not in answered:
                     if best is None or score[index] > best[0]:
-                        best = (float(score[index]), int(snapshot_ids[index]), clip)
+                        best = (float(score[index]), int(snapshot_ids[index]), clip.clip_id)
                     break
         if best is not None:
-            return PairChoice(session.get_one(models.Snapshot, best[1]), best[2], "informative", best[0])
+            score, snapshot_id, clip_id = best
+            return PairChoice(*_pair(session, snapshot_id, clip_id), "informative", score)
     return None
 
 

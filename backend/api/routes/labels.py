@@ -1,6 +1,7 @@
 from typing import Annotated
 
-from fastapi import APIRouter, Query, status
+from fastapi import APIRouter, Query, Response, status
+from pydantic import BaseModel
 
 from backend import models, schemas
 from backend.deps import CallerDep, SessionDep
@@ -10,8 +11,14 @@ from backend.services import labels, robots
 router = APIRouter(tags=["labels"])
 
 
+def _json(body: BaseModel, status_code: int = status.HTTP_200_OK) -> Response:
+    """The labelling loop's responses, built and checked once here: FastAPI passes a Response through
+    without validating it a second time (on a thread hop of its own)."""
+    return Response(body.model_dump_json(), status_code=status_code, media_type="application/json")
+
+
 @router.get("/labels/next", response_model=schemas.NextPair)
-def next_pair(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) -> schemas.NextPair:
+def next_pair(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) -> Response:
     """The next (image, command) pair to ask about: never one already answered, balanced across the
     household's commands, and (once an active model has embedded the data) the image that sits most
     between two commands."""
@@ -19,25 +26,30 @@ def next_pair(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) 
         robots.get_robot(session, caller.household_id, robot_id)
     choice = labels.next_pair(session, caller.household_id, robot_id)
     if choice is None:
-        return schemas.NextPair(
-            snapshot=None,
-            clip=None,
-            strategy="none",
-            message="nothing left to ask: record a command, or capture more camera views "
-            "(POST /api/v1/robots/{robot_id}/snapshots:capture)",
+        return _json(
+            schemas.NextPair(
+                snapshot=None,
+                clip=None,
+                strategy="none",
+                message="nothing left to ask: record a command, or capture more camera views "
+                "(POST /api/v1/robots/{robot_id}/snapshots:capture)",
+            )
         )
-    return schemas.NextPair(
-        snapshot=schemas.SnapshotPublic.model_validate(choice.snapshot),
-        clip=schemas.ClipPublic.model_validate(choice.clip),
-        strategy=choice.strategy,  # type: ignore[arg-type]
-        informativeness=choice.informativeness,
-        message="does this command describe what the robot sees?",
+    return _json(
+        schemas.NextPair(
+            snapshot=schemas.SnapshotPublic.model_validate(choice.snapshot),
+            clip=schemas.ClipPublic.model_validate(choice.clip),
+            strategy=choice.strategy,  # type: ignore[arg-type]
+            informativeness=choice.informativeness,
+            message="does this command describe what the robot sees?",
+        )
     )
 
 
 @router.post("/labels", response_model=schemas.LabelPublic, status_code=status.HTTP_201_CREATED)
-def create_label(body: schemas.LabelCreate, caller: CallerDep, session: SessionDep) -> models.Label:
-    return labels.create_label(session, caller.user, body)
+def create_label(body: schemas.LabelCreate, caller: CallerDep, session: SessionDep) -> Response:
+    label = labels.create_label(session, caller.user_id, caller.household_id, body)
+    return _json(schemas.LabelPublic.model_validate(label), status.HTTP_201_CREATED)
 
 
 @router.get("/labels", response_model=list[schemas.LabelPublic])
@@ -71,14 +83,14 @@ def change_label(
     label_id: PathId, body: schemas.LabelUpdate, caller: CallerDep, session: SessionDep
 ) -> models.Label:
     return labels.change_label(
-        session, labels.get_label(session, caller.household_id, label_id), caller.user, body.verdict
+        session, labels.get_label(session, caller.household_id, label_id), caller.user_id, body.verdict
     )
 
 
 @router.delete("/labels/{label_id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_label(label_id: PathId, caller: CallerDep, session: SessionDep) -> None:
     """Undo: the label goes, its history (who answered, who removed it, when) stays."""
-    labels.delete_label(session, labels.get_label(session, caller.household_id, label_id), caller.user)
+    labels.delete_label(session, labels.get_label(session, caller.household_id, label_id), caller.user_id)
 
 
 @router.get("/triplets/stats", response_model=schemas.TripletStats)
