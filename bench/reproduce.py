@@ -1,0 +1,253 @@
+"""The paper's Table I on this machine: VAR and the baselines on Kuka and TurtleBot with each sound set.
+
+    nice -n 10 .venv/bin/python bench/reproduce.py --resume                      # the required rows, 1M steps
+    nice -n 19 .venv/bin/python bench/reproduce.py --rows kuka-wordset:var --steps 300000 --tag reduced \\
+        --var-dataset bench-kuka-50000-96px-seed0 --var-max-steps 500 --max-minutes 35 --resume  # reduced
+
+Each row is world-sounds:method. A row trains a policy (resuming from its checkpoint with --resume), then runs
+the evaluation protocol (50 episodes per intent, deterministic policy) on every unheard tier of the corpus.
+Missing pieces are made first through the project's own commands: the corpus (`varbot sounds build`), the
+VAR's triplets (`varbot var collect`) and the VAR (`varbot var train`), unless --var names a checkpoint to
+use.
+
+`bench/results/reproduce.json` keeps one record per row: status (complete / partial), env steps, wall time,
+steps/s, labels used (counted as the paper does), success per unheard tier and per intent, peak memory, the
+curve PNG. Success-vs-steps curves: `bench/results/reproduce_<world>-<sounds>.png`. Never tuned on test
+voices: evaluation only reads the unheard tiers, training only the train split.
+"""
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+from rich.console import Console
+from rich.table import Table
+
+RESULTS = Path(__file__).resolve().parent / "results"
+OUTPUT = RESULTS / "reproduce.json"
+WORLD_SOUNDS = {
+    "kuka-wordset": ("kuka", "wordset"),
+    "kuka-notes": ("kuka", "notes"),
+    "kuka-mix": ("kuka", "mix"),
+    "turtlebot-objects": ("turtlebot", "objects"),
+    "turtlebot-notes": ("turtlebot", "notes"),
+    "turtlebot-mix": ("turtlebot", "mix"),
+}
+# Paper, Table I (success %, 200 test episodes). The paper's TurtleBot "Wordset" row is our "objects" set.
+PAPER = {
+    "kuka-wordset": {"sparse": 46.0, "rsi": 95.5, "var": 97.0},
+    "kuka-notes": {"sparse": 28.5, "rsi": 92.5, "var": 98.0},
+    "kuka-mix": {"sparse": 23.0, "rsi": 94.0, "var": 95.5},
+    "turtlebot-objects": {"sparse": 22.0, "rsi": 92.0, "var": 94.0},
+    "turtlebot-notes": {"sparse": 9.5, "rsi": 95.0, "var": 96.0},
+    "turtlebot-mix": {"sparse": 21.0, "rsi": 87.0, "var": 91.0},
+}
+REQUIRED = [
+    "kuka-wordset:var",
+    "kuka-notes:var",
+    "turtlebot-objects:var",
+    "kuka-wordset:sparse",
+    "kuka-wordset:rsi",
+]
+
+
+def parse_arguments() -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--rows", default=",".join(REQUIRED), help="comma-separated world-sounds:method")
+    parser.add_argument("--steps", type=int, default=1_000_000, help="env steps per row")
+    parser.add_argument(
+        "--triplets", type=int, default=50_000, help="VAR training views (when a VAR is made)"
+    )
+    parser.add_argument("--var", type=Path, default=None, help="use this VAR checkpoint for the var rows")
+    parser.add_argument("--var-dataset", default=None, help="train the VAR on this collected dataset")
+    parser.add_argument("--var-max-steps", type=int, default=None, help="shorter VAR schedule (reduced runs)")
+    parser.add_argument("--image-size", type=int, default=None, help="default: the VAR's (96 when none)")
+    parser.add_argument("--episodes-per-intent", type=int, default=50)
+    parser.add_argument("--max-minutes", type=float, default=None, help="stop a row after this wall time")
+    parser.add_argument("--tag", default="full", help="label stored with the rows (e.g. reduced)")
+    parser.add_argument("--resume", action="store_true", help="continue rows from their checkpoints")
+    parser.add_argument("--seed", type=int, default=1)
+    return parser.parse_args()
+
+
+def varbot(*arguments: str) -> None:
+    command = [str(Path(sys.executable).with_name("varbot")), *arguments]
+    print("$", " ".join(command), flush=True)
+    subprocess.run(command, check=True)
+
+
+def ensure_corpus(sounds: str) -> None:
+    from learning.sounds import load_corpus
+
+    try:
+        load_corpus(sounds)
+    except FileNotFoundError:
+        varbot("sounds", "build", "--sets", sounds)
+
+
+def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
+    """The VAR for a row: --var if given, else one trained here (on --var-dataset or on new views)."""
+    if args.var is not None:
+        return args.var
+    from varbot.paths import data_subdir
+
+    dataset = args.var_dataset or f"reproduce-{world}-{args.triplets}"
+    schedule = f"-{args.var_max_steps}steps" if args.var_max_steps else ""
+    run_dir = data_subdir("bench", "reproduce", "var", f"{Path(dataset).name}-{sounds}{schedule}")
+    final = run_dir / "final.pt"
+    if not final.exists():
+        if args.var_dataset is None:
+            varbot("var", "collect", world, "--triplets", str(args.triplets), "--sounds", sounds,
+                   "--name", dataset, "--image-size", str(args.image_size or 96))  # fmt: skip
+        schedule_args = ["--max-steps", str(args.var_max_steps)] if args.var_max_steps else []
+        varbot("var", "train", dataset, "--sounds", sounds, "--run-dir", str(run_dir), "--threads", "1",
+               *schedule_args)  # fmt: skip
+    return final
+
+
+def load_results() -> dict:
+    return json.loads(OUTPUT.read_text()) if OUTPUT.exists() else {"benchmark": "reproduce", "rows": {}}
+
+
+def save_results(results: dict) -> None:
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    temporary = OUTPUT.with_suffix(".json.tmp")
+    temporary.write_text(json.dumps(results, indent=2))
+    os.replace(temporary, OUTPUT)
+
+
+def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
+    from learning.rl.baselines import method_config, needs_var
+    from learning.rl.evaluate import evaluate
+    from learning.rl.plots import plot_run, read_metrics
+    from learning.rl.ppo import load_policy
+    from learning.rl.rewards import corpus_bank
+    from learning.rl.run import load_frozen_var, train_run
+    from learning.sounds import load_corpus
+    from varbot.paths import data_subdir
+
+    row, method = key.split(":")
+    world, sounds = WORLD_SOUNDS[row]
+    ensure_corpus(sounds)
+    var_path = ensure_var(world, sounds, args) if needs_var(method) else None
+    image_size = args.image_size
+    if image_size is None and var_path is not None:
+        image_size = int(load_frozen_var(var_path).config.image_size)
+    config = method_config(
+        method,
+        world=world,
+        sounds=sounds,
+        total_steps=args.steps,
+        image_size=image_size or 96,
+        seed=args.seed,
+    )
+    run_dir = data_subdir("bench", "reproduce", "rl", args.tag, f"{row}-{method}")
+    started = time.monotonic()
+
+    def on_update(record: dict) -> bool:
+        if record["update"] % 10 == 0:
+            results["rows"][key] = {**results["rows"].get(key, {}), "status": "running", "progress": record}
+            save_results(results)
+        return args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
+
+    summary = train_run(config, run_dir, var_path, resume=args.resume, on_update=on_update)
+    records = read_metrics(run_dir)
+    wall = sum(config.batch_size / r["sps"] for r in records)
+    complete = summary["env_steps"] >= config.num_updates * config.batch_size
+    policy, payload = load_policy(run_dir / "checkpoint.pt")
+    var = load_frozen_var(var_path)
+    evaluations = {}
+    for split in [s for s in load_corpus(sounds).splits if s != "train"]:
+        goals = corpus_bank(sounds, split)
+        if var is not None:
+            goals.embed(var)
+        result = evaluate(policy, var, goals, world, config.image_size, split=split,
+                          episodes_per_intent=args.episodes_per_intent, seed=2023)  # fmt: skip
+        evaluations[split] = result.to_dict()
+    plot_run(run_dir)
+    return {
+        "row": row,
+        "world": world,
+        "sounds": sounds,
+        "method": method,
+        "tag": args.tag,
+        "status": "complete" if complete else "partial",
+        "env_steps": summary["env_steps"],
+        "target_steps": config.num_updates * config.batch_size,
+        "wall_s": wall,
+        "steps_per_s": summary["env_steps"] / wall if wall else None,
+        "time_shares": summary["time_shares"],
+        "peak_memory_mb": summary["peak_memory_mb"],
+        "labels": summary["labels"],
+        "training_recent_success": summary["recent_success"],
+        "success": {split: e["success_rate"] for split, e in evaluations.items()},
+        "evaluation": evaluations,
+        "paper_success": PAPER[row].get(method.replace("-current-sound", "")),
+        "var_checkpoint": None if var_path is None else str(var_path),
+        "run_dir": str(run_dir),
+        "curves": str(run_dir / "curves.png"),
+        "config": payload["config"],
+    }
+
+
+def curves(results: dict) -> None:
+    from learning.rl.plots import plot_success_curves
+
+    by_row: dict[str, dict[str, Path]] = {}
+    for record in results["rows"].values():
+        if "run_dir" in record:
+            by_row.setdefault(record["row"], {})[f"{record['method']} ({record['tag']})"] = Path(
+                record["run_dir"]
+            )
+    for row, runs in by_row.items():
+        path = plot_success_curves(
+            runs, RESULTS / f"reproduce_{row}.png", title=f"{row}: success vs env steps"
+        )
+        results.setdefault("curves", {})[row] = str(path)
+
+
+def print_table(results: dict) -> None:
+    table = Table(title="Table I on this machine (success %, unheard tiers)")
+    for column in ("row", "method", "status", "env steps", "steps/s", "success by tier", "paper", "labels"):
+        table.add_column(column)
+    for record in results["rows"].values():
+        if "success" not in record:
+            continue
+        tiers = ", ".join(f"{k}: {100 * v:.1f}" for k, v in record["success"].items())
+        table.add_row(
+            record["row"], record["method"], record["status"], f"{record['env_steps']:,}",
+            f"{record['steps_per_s']:.0f}", tiers, str(record["paper_success"]),
+            f"{record['labels']['total']:,}",
+        )  # fmt: skip
+    Console().print(table)
+
+
+def main() -> None:
+    args = parse_arguments()
+    keys = [k.strip() for k in args.rows.split(",") if k.strip()]
+    for key in keys:
+        row, _, method = key.partition(":")
+        if row not in WORLD_SOUNDS or method not in ("var", "var-current-sound", "sparse", "rsi"):
+            sys.exit(
+                f"unknown row {key!r}: use world-sounds:method with world-sounds in {', '.join(WORLD_SOUNDS)}"
+            )
+    results = load_results()
+    for key in keys:
+        done = results["rows"].get(key, {})
+        if args.resume and done.get("status") == "complete" and done.get("tag") == args.tag:
+            print(f"{key}: complete, skipped")
+            continue
+        results["rows"][key] = run_row(key, args, results)
+        curves(results)
+        save_results(results)
+    print_table(results)
+
+
+if __name__ == "__main__":
+    main()

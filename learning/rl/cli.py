@@ -1,0 +1,190 @@
+"""`varbot rl train | improve | eval | plot`. Heavy imports (torch, pybullet) happen inside the commands."""
+
+import json
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+app = typer.Typer(help="Policy learning with the VAR's intrinsic reward (PPO), evaluation and baselines.",
+                  no_args_is_help=True)  # fmt: skip
+
+
+def _fail(message: str) -> None:
+    typer.secho(message, fg=typer.colors.RED, err=True)
+    raise typer.Exit(1)
+
+
+@app.command()
+def train(
+    world: Annotated[str, typer.Option(help="kuka, kinova or turtlebot")] = "kuka",
+    sounds: Annotated[
+        str, typer.Option(help="Sound corpus the goal clips come from (its train split).")
+    ] = "wordset",
+    var: Annotated[
+        Path | None, typer.Option(help="Frozen VAR checkpoint (needed by the var methods).")
+    ] = None,
+    method: Annotated[
+        str, typer.Option(help="var, var-current-sound, sparse (NoAux+SparseR) or rsi")
+    ] = "var",
+    current_sound: Annotated[bool, typer.Option("--current-sound", help="Add f_S(S_t)·f_S(S_goal).")] = False,
+    steps: Annotated[int, typer.Option(help="Environment steps in all.")] = 1_000_000,
+    run_dir: Annotated[
+        Path | None, typer.Option(help="Default: <data dir>/rl/runs/<world>-<sounds>-<method>.")
+    ] = None,
+    image_size: Annotated[int | None, typer.Option(help="Rendered image size (default: the VAR's).")] = None,
+    policy_image_size: Annotated[int, typer.Option(help="Image size the policy CNN sees.")] = 32,
+    lr: Annotated[float, typer.Option(help="Adam learning rate (annealed to 0).")] = 3e-4,
+    envs: Annotated[int, typer.Option(help="Parallel environments (processes).")] = 8,
+    seed: int = 1,
+    resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
+) -> None:
+    """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
+    from learning.rl.baselines import METHODS, method_config, needs_var
+    from learning.rl.run import train_run
+    from varbot.paths import data_dir
+
+    if method not in METHODS:
+        _fail(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
+    if current_sound:
+        method = "var-current-sound" if method == "var" else method
+    if needs_var(method) and var is None:
+        _fail(f"method {method} needs a VAR checkpoint: pass --var PATH (train one with `varbot var train`)")
+    if image_size is None:
+        image_size = _var_image_size(var) if var is not None else 96
+    config = method_config(
+        method,
+        world=world,
+        sounds=sounds,
+        total_steps=steps,
+        image_size=image_size,
+        policy_image_size=policy_image_size,
+        learning_rate=lr,
+        num_envs=envs,
+        num_minibatches=2 if envs % 2 == 0 else 1,
+        seed=seed,
+    )
+    run_dir = run_dir or data_dir() / "rl" / "runs" / f"{world}-{sounds}-{method}"
+    try:
+        summary = train_run(config, run_dir, var if needs_var(method) else None, resume=resume)
+    except (ValueError, FileNotFoundError, FileExistsError) as error:
+        _fail(str(error))
+    typer.echo(json.dumps(summary, indent=2))
+    typer.echo(f"run directory: {run_dir}")
+
+
+@app.command()
+def improve(
+    policy: Annotated[Path, typer.Option(help="Policy checkpoint to start from.")],
+    var: Annotated[Path, typer.Option(help="The (fine-tuned) VAR checkpoint.")],
+    goal: Annotated[list[str], typer.Option(help="Goal clip [INTENT:]PATH (WAV or .npy MFCC); repeat.")],
+    steps: Annotated[int, typer.Option(help="Step budget.")] = 10_000,
+    run_dir: Annotated[
+        Path | None, typer.Option(help="Default: <data dir>/rl/improve/<policy run name>.")
+    ] = None,
+    lr: Annotated[float | None, typer.Option(help="Default: a third of the original learning rate.")] = None,
+    resume: Annotated[bool, typer.Option("--resume")] = False,
+) -> None:
+    """Self-improvement: continue PPO with a fine-tuned VAR and the household's own clips as goals."""
+    from learning.rl.improve import improve as run_improve
+    from varbot.paths import data_dir
+
+    run_dir = run_dir or data_dir() / "rl" / "improve" / policy.parent.name
+    try:
+        summary = run_improve(policy, var, goal, steps, run_dir, learning_rate=lr, resume=resume)
+    except (ValueError, FileNotFoundError, FileExistsError) as error:
+        _fail(str(error))
+    typer.echo(json.dumps(summary, indent=2))
+
+
+@app.command("eval")
+def evaluate_command(
+    policy: Annotated[Path, typer.Option(help="Policy checkpoint (a run's checkpoint.pt).")],
+    var: Annotated[
+        Path | None, typer.Option(help="VAR checkpoint (default: the one the policy trained with).")
+    ] = None,
+    split: Annotated[
+        str | None, typer.Option(help="Unheard tier for the goal clips (default: the first).")
+    ] = None,
+    sounds: Annotated[
+        str | None, typer.Option(help="Corpus (default: the one the policy trained with).")
+    ] = None,
+    episodes_per_intent: int = 50,
+    seed: int = 12345,
+    gif: Annotated[Path | None, typer.Option(help="Write a GIF of the first episodes here.")] = None,
+    out: Annotated[
+        Path | None, typer.Option(help="JSON result (default: <run dir>/eval-<split>.json).")
+    ] = None,
+) -> None:
+    """The evaluation protocol: 50 episodes per intent, deterministic policy, unheard goal clips."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from learning.rl.evaluate import evaluate, save_eval
+    from learning.rl.ppo import PPOConfig, load_policy
+    from learning.rl.rewards import corpus_bank
+    from learning.rl.run import load_frozen_var
+
+    try:
+        model, payload = load_policy(policy)
+        config = PPOConfig.from_dict(payload["config"])
+        sounds = sounds or config.sounds
+        split = split or _first_unheard_split(sounds)
+        var_path = var or (payload.get("var_path") if model.config.goal_encoder == "var" else None)
+        frozen = load_frozen_var(var_path)
+        goals = corpus_bank(sounds, split)
+        if frozen is not None:
+            goals.embed(frozen)
+        result = evaluate(
+            model, frozen, goals, config.world, config.image_size, split=split,
+            episodes_per_intent=episodes_per_intent, seed=seed, success_rule=config.success_rule,
+            max_steps=config.max_episode_steps, gif_path=gif,
+        )  # fmt: skip
+    except (ValueError, FileNotFoundError) as error:
+        _fail(str(error))
+    out = out or policy.parent / f"eval-{split}.json"
+    save_eval(result, out)
+    table = Table(title=f"{config.world} / {sounds} / {split}: {result.success_rate:.1%} success")
+    table.add_column("intent")
+    table.add_column("episodes", justify="right")
+    table.add_column("success", justify="right")
+    for name, count, rate in zip(
+        result.intent_names, result.episodes_by_intent, result.success_by_intent, strict=True
+    ):
+        table.add_row(name, str(count), f"{rate:.1%}")
+    table.add_row("mean", str(sum(result.episodes_by_intent)), f"{result.success_rate:.1%}")
+    Console().print(table)
+    typer.echo(f"mean episode length {result.mean_episode_length:.1f}; result: {out}")
+
+
+@app.command()
+def plot(
+    run_dirs: Annotated[list[Path], typer.Argument(help="One or more run directories.")],
+    out: Annotated[Path | None, typer.Option(help="Comparison PNG (several runs).")] = None,
+) -> None:
+    """Curves of a run (curves.png in its directory); with several runs also success-vs-steps on one axis."""
+    from learning.rl.plots import plot_run, plot_success_curves
+
+    for run_dir in run_dirs:
+        try:
+            typer.echo(f"wrote {plot_run(run_dir)}")
+        except FileNotFoundError as error:
+            _fail(str(error))
+    if len(run_dirs) > 1 or out is not None:
+        target = out or Path("success_vs_steps.png")
+        typer.echo(f"wrote {plot_success_curves({d.name: d for d in run_dirs}, target)}")
+
+
+def _var_image_size(path: Path) -> int:
+    from learning.var.checkpoint import read_checkpoint
+
+    return int(read_checkpoint(path)["config"]["image_size"])
+
+
+def _first_unheard_split(sounds: str) -> str:
+    from learning.sounds import load_corpus
+
+    unheard = [s for s in load_corpus(sounds).splits if s != "train"]
+    if not unheard:
+        raise ValueError(f"the corpus {sounds} has no unheard split")
+    return unheard[0]

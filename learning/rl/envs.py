@@ -1,0 +1,117 @@
+"""Environment side of RL: what runs inside each worker process. No torch here, so workers stay small.
+
+`RLInfo` gives every step and reset the same numeric info keys (the vector env stacks them into arrays), and
+can play a fixed schedule of (intent, seed) episodes — the evaluation protocol uses that to give each worker
+its share of the 50-episodes-per-intent list.
+"""
+
+import multiprocessing
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AsyncVectorEnv, AutoresetMode
+
+NO_SOUND = -1  # `heard` when nothing (or several things) is in view
+
+
+class RLInfo(gym.Wrapper):
+    """Normalises `info` to: intent (int), heard (int, -1 = nothing), success (bool), distance (float, m to
+    the target, simulator ground truth used only by the shaped-reward baseline), episode (int, index within
+    the schedule; -1 once a schedule is exhausted)."""
+
+    def __init__(self, env: gym.Env, schedule: Sequence[tuple[int, int]] | None = None) -> None:
+        super().__init__(env)
+        self.schedule = list(schedule) if schedule is not None else None
+        self.episode = -1
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
+        self.episode += 1
+        options = dict(options or {})
+        if self.schedule is not None and self.episode < len(self.schedule):
+            intent, seed = self.schedule[self.episode]
+            options["intent"] = intent
+        obs, info = self.env.reset(seed=seed, options=options or None)
+        return obs, self._info(obs, info)
+
+    def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        return obs, float(reward), terminated, truncated, self._info(obs, info)
+
+    def _info(self, obs: dict, info: dict) -> dict:
+        heard = info.get("heard")
+        in_schedule = self.schedule is None or self.episode < len(self.schedule)
+        return {
+            "intent": int(info["intent"]),
+            "heard": NO_SOUND if heard is None else int(heard),
+            "success": bool(info.get("success", False)),
+            "distance": target_distance(self.env, obs, info),
+            "episode": self.episode if in_schedule else -1,
+        }
+
+
+def target_distance(env: gym.Env, obs: dict, info: dict) -> float:
+    """Ground-truth distance from the robot to the target (metres); only the shaped baseline reads it. Arm
+    worlds: gripper (x, y) to the target block's centre; TurtleBot: bumper-to-object clearance."""
+    if "target_clearance" in info:
+        return float(info["target_clearance"])
+    unwrapped = env.unwrapped
+    if hasattr(unwrapped, "slot_position"):
+        target = np.asarray(unwrapped.slot_position(int(info["intent"]))[:2])
+        return float(np.linalg.norm(np.asarray(obs["state"][:2], dtype=np.float64) - target))
+    return float("nan")
+
+
+def make_env_fn(
+    world_id: str,
+    image_size: int,
+    success_rule: str | None = None,
+    max_steps: int | None = None,
+    schedule: Sequence[tuple[int, int]] | None = None,
+    domain: Any = None,
+) -> Callable[[], gym.Env]:
+    def make() -> gym.Env:
+        import sim  # noqa: F401  (registers the worlds inside the worker)
+
+        kwargs: dict[str, Any] = {"image_size": image_size, "max_steps": max_steps}
+        if success_rule is not None:  # None: the world's own rule (Kuka "final", TurtleBot "hold")
+            kwargs["success_rule"] = success_rule
+        if domain is not None:
+            kwargs["domain"] = domain
+        return RLInfo(gym.make(world_id, **kwargs), schedule)
+
+    return make
+
+
+def make_vector_env(
+    world_id: str,
+    num_envs: int,
+    image_size: int,
+    success_rule: str | None = None,
+    max_steps: int | None = None,
+    schedules: Sequence[Sequence[tuple[int, int]]] | None = None,
+    domain: Any = None,
+    context: str = "forkserver",
+) -> AsyncVectorEnv:
+    """`num_envs` worlds in their own processes, reset in the same step as they end (final observation in
+    `info["final_obs"]`, the final step's info in `info["final_info"]`)."""
+    if context == "forkserver":
+        # the fork server imports these once; each worker forks from it instead of importing torch-free code
+        # again
+        multiprocessing.set_forkserver_preload(["learning.rl.envs", "sim.kuka_blocks", "sim.turtlebot_arena"])
+    fns = [
+        make_env_fn(
+            world_id, image_size, success_rule, max_steps, schedules[i] if schedules else None, domain
+        )
+        for i in range(num_envs)
+    ]
+    return AsyncVectorEnv(fns, context=context, autoreset_mode=AutoresetMode.SAME_STEP)
+
+
+def world_id(world: str) -> str:
+    import sim
+
+    if world not in sim.WORLDS:
+        raise ValueError(f"unknown world {world!r}: choose one of {', '.join(sim.WORLDS)}")
+    return sim.WORLDS[world]

@@ -1,0 +1,77 @@
+"""Training curves as PNG: one run's dashboard, and success-vs-steps for several runs on one axis."""
+
+import json
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+
+def read_metrics(run_dir: Path) -> list[dict]:
+    path = Path(run_dir) / "metrics.jsonl"
+    if not path.exists():
+        raise FileNotFoundError(f"no metrics at {path}: is {run_dir} a `varbot rl train` run directory?")
+    return [json.loads(line) for line in path.read_text().splitlines() if line.strip()]
+
+
+def plot_run(run_dir: Path, out: Path | None = None) -> Path | None:
+    """success rate, episode return, PPO losses, throughput and where the time went, against env steps."""
+    records = read_metrics(run_dir)
+    if not records:
+        return None
+    out = Path(out or Path(run_dir) / "curves.png")
+    steps = np.array([r["global_step"] for r in records])
+    fig, axes = plt.subplots(2, 3, figsize=(14, 7))
+    panels = [
+        ("recent success rate", ["recent_success"]),
+        ("episode return (intrinsic / task reward)", ["episode_return"]),
+        ("losses", ["policy_loss", "value_loss", "aux_loss"]),
+        ("approx. KL, clip fraction", ["approx_kl", "clipfrac"]),
+        ("env steps / s", ["sps"]),
+    ]
+    for ax, (title, keys) in zip(axes.flat, panels, strict=False):
+        for key in keys:
+            ax.plot(steps, [r.get(key, np.nan) for r in records], label=key)
+        ax.set_title(title)
+        ax.set_xlabel("env steps")
+        if len(keys) > 1:
+            ax.legend(fontsize=8)
+    ax = axes.flat[5]
+    parts = ["env_s", "var_s", "policy_s", "update_s", "other_s"]
+    totals = np.array([[r["time"][p] for p in parts] for r in records])
+    shares = totals / totals.sum(axis=1, keepdims=True)
+    ax.stackplot(steps, shares.T, labels=[p.removesuffix("_s") for p in parts])
+    ax.set_title("share of update time")
+    ax.set_xlabel("env steps")
+    ax.legend(fontsize=8, loc="lower left")
+    axes.flat[0].set_ylim(-0.02, 1.02)
+    fig.suptitle(str(run_dir))
+    fig.tight_layout()
+    fig.savefig(out, dpi=90)
+    plt.close(fig)
+    return out
+
+
+def plot_success_curves(runs: dict[str, Path], out: Path, title: str = "success rate vs env steps") -> Path:
+    """One line per run (label → run directory): recent success rate against env steps."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for label, run_dir in runs.items():
+        try:
+            records = read_metrics(run_dir)
+        except FileNotFoundError:
+            continue
+        ax.plot([r["global_step"] for r in records], [r["recent_success"] for r in records], label=label)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("success rate (last 100 training episodes)")
+    ax.set_ylim(-0.02, 1.02)
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out, dpi=100)
+    plt.close(fig)
+    return out

@@ -1,0 +1,206 @@
+"""The recurrent actor-critic of the paper (Fig. 3), sized for a 2-core CPU.
+
+    I_t ──► policy CNN ──► 128 ─┐
+                                 (+) ──► GRU ──► h_t ─┐
+    [f_I(I_t), M_t] ──► MLP ─► 128 ┘                   ├──► actor (Gaussian mean) / critic (value)
+    goal ──► goal MLP (once per episode) ──────────────┘
+
+The goal joins after the recurrent core because it is a one-time signal. With the VAR the goal is the frozen
+f_S(S_goal) and f_I(I_t) is part of the observation. The baselines (no VAR) use `goal_encoder="learned"`: a
+small MFCC CNN trained by RL (and, RSI-style, by auxiliary classification losses on ground-truth labels).
+"""
+
+import itertools
+from dataclasses import asdict, dataclass
+from typing import Literal
+
+import torch
+from torch import nn
+from torch.distributions import Normal
+from torch.nn import functional as F
+
+GoalEncoder = Literal["var", "learned"]
+MFCC_SHAPE = (100, 40)
+
+
+@dataclass(frozen=True)
+class PolicyConfig:
+    image_size: int  # size of the images the env renders (the VAR's input size)
+    state_dim: int  # M_t: gripper (x, y) or odometry (x, y, sin, cos)
+    var_dim: int = 3  # size of f_I(I_t) in the observation; 0 when the policy has no VAR
+    goal_encoder: GoalEncoder = "var"
+    goal_dim: int = 3  # size of f_S(S_goal) when goal_encoder == "var"
+    policy_image_size: int = 32  # the policy CNN sees a smaller copy: its cost dominates the PPO update
+    hidden: int = 128
+    action_dim: int = 2
+    num_intents: int = 4  # only used by the auxiliary heads (RSI baseline)
+    aux_heads: bool = False
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def layer_init(layer: nn.Module, std: float = 2**0.5, bias: float = 0.0) -> nn.Module:
+    nn.init.orthogonal_(layer.weight, std)
+    nn.init.constant_(layer.bias, bias)
+    return layer
+
+
+def downsample_images(images: torch.Tensor, size: int) -> torch.Tensor:
+    """uint8 (B, H, W, 3) → uint8 (B, size, size, 3) by area averaging (done once per step, stored in the
+    buffer)."""
+    if images.shape[1] == size and images.shape[2] == size:
+        return images
+    x = images.permute(0, 3, 1, 2).float()
+    x = F.interpolate(x, size=(size, size), mode="area")
+    return x.round_().clamp_(0, 255).to(torch.uint8).permute(0, 2, 3, 1).contiguous()
+
+
+class ImageEncoder(nn.Module):
+    """Three stride-2 3×3 convolutions: about 0.6 M multiply-adds per 32×32 image."""
+
+    def __init__(self, image_size: int, out: int) -> None:
+        super().__init__()
+        self.conv = nn.Sequential(
+            layer_init(nn.Conv2d(3, 16, 3, stride=2, padding=1)),
+            nn.ReLU(),
+            layer_init(nn.Conv2d(16, 32, 3, stride=2, padding=1)),
+            nn.ReLU(),
+            layer_init(nn.Conv2d(32, 32, 3, stride=2, padding=1)),
+            nn.ReLU(),
+            nn.Flatten(),
+        )
+        with torch.no_grad():
+            flat = self.conv(torch.zeros(1, 3, image_size, image_size)).shape[1]
+        self.fc = nn.Sequential(layer_init(nn.Linear(flat, out)), nn.ReLU())
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        x = images.permute(0, 3, 1, 2).float().mul_(1.0 / 255.0)
+        return self.fc(self.conv(x))
+
+
+class SoundEncoder(nn.Module):
+    """MFCC (B, 100, 40) → features; used only by the baselines, which learn their own goal encoder."""
+
+    def __init__(self, out: int) -> None:
+        super().__init__()
+        self.net = nn.Sequential(
+            layer_init(nn.Conv2d(1, 16, 3, stride=2, padding=1)),
+            nn.ReLU(),
+            layer_init(nn.Conv2d(16, 32, 3, stride=2, padding=1)),
+            nn.ReLU(),
+            layer_init(nn.Conv2d(32, 32, 3, stride=2, padding=1)),
+            nn.ReLU(),
+            nn.AdaptiveAvgPool2d((4, 2)),
+            nn.Flatten(),
+            layer_init(nn.Linear(32 * 8, out)),
+            nn.ReLU(),
+        )
+
+    def forward(self, mfcc: torch.Tensor) -> torch.Tensor:
+        return self.net(mfcc.unsqueeze(1))
+
+
+class Policy(nn.Module):
+    def __init__(self, config: PolicyConfig) -> None:
+        super().__init__()
+        self.config = config
+        h = config.hidden
+        self.image_encoder = ImageEncoder(config.policy_image_size, h)
+        self.vector_encoder = nn.Sequential(
+            layer_init(nn.Linear(config.var_dim + config.state_dim, h)), nn.ReLU()
+        )
+        self.gru = nn.GRU(h, h)
+        for name, param in self.gru.named_parameters():
+            if "weight" in name:
+                nn.init.orthogonal_(param, 1.0)
+            else:
+                nn.init.constant_(param, 0.0)
+        goal_features = 64
+        if config.goal_encoder == "var":
+            self.goal_encoder: nn.Module = nn.Sequential(
+                layer_init(nn.Linear(config.goal_dim, goal_features)), nn.ReLU()
+            )
+        else:
+            self.goal_encoder = SoundEncoder(goal_features)
+        joined = h + goal_features
+        self.actor_mean = nn.Sequential(
+            layer_init(nn.Linear(joined, h)), nn.Tanh(), layer_init(nn.Linear(h, config.action_dim), std=0.01)
+        )
+        self.actor_logstd = nn.Parameter(torch.zeros(1, config.action_dim))
+        self.critic = nn.Sequential(
+            layer_init(nn.Linear(joined, h)), nn.Tanh(), layer_init(nn.Linear(h, 1), std=1.0)
+        )
+        if config.aux_heads:
+            # RSI-style auxiliary classifiers: what is in view (intents + "nothing") and which intent the
+            # goal is
+            self.aux_view = layer_init(nn.Linear(h, config.num_intents + 1), std=0.01)
+            self.aux_goal = layer_init(nn.Linear(goal_features, config.num_intents), std=0.01)
+
+    # -- pieces ----------------------------------------------------------------------------------------------
+    def initial_state(self, batch: int) -> torch.Tensor:
+        return torch.zeros(batch, self.config.hidden)
+
+    def encode_goal(self, goal: torch.Tensor) -> torch.Tensor:
+        """goal: (B, goal_dim) VAR embedding, or (B, 100, 40) MFCC for a learned encoder. Once per episode."""
+        return self.goal_encoder(goal)
+
+    def encode_inputs(
+        self, images: torch.Tensor, var_embedding: torch.Tensor, state: torch.Tensor
+    ) -> torch.Tensor:
+        vector = torch.cat([var_embedding, state], dim=-1) if self.config.var_dim else state
+        return F.relu(self.image_encoder(images) + self.vector_encoder(vector))
+
+    def heads(self, core: torch.Tensor, goal_features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        joined = torch.cat([core, goal_features], dim=-1)
+        return self.actor_mean(joined), self.critic(joined).squeeze(-1)
+
+    # -- one environment step (rollout) ----------------------------------------------------------------------
+    def step(
+        self,
+        images: torch.Tensor,
+        var_embedding: torch.Tensor,
+        state: torch.Tensor,
+        goal_features: torch.Tensor,
+        hidden: torch.Tensor,
+        episode_start: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Returns (action mean, value, new hidden). `episode_start` (B,) zeroes the hidden state first."""
+        hidden = hidden * (1.0 - episode_start).unsqueeze(-1)
+        core, _ = self.gru(self.encode_inputs(images, var_embedding, state).unsqueeze(0), hidden.unsqueeze(0))
+        hidden = core[0]
+        mean, value = self.heads(hidden, goal_features)
+        return mean, value, hidden
+
+    def distribution(self, mean: torch.Tensor) -> Normal:
+        return Normal(mean, self.actor_logstd.expand_as(mean).exp())
+
+    # -- whole sequences (PPO update) ------------------------------------------------------------------------
+    def evaluate_sequences(
+        self,
+        images: torch.Tensor,
+        var_embedding: torch.Tensor,
+        state: torch.Tensor,
+        goal_features: torch.Tensor,
+        hidden: torch.Tensor,
+        episode_start: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Inputs are time-major (T, B, ...) with whole sequences per environment; `hidden` (B, hidden) is the
+        state before step 0. The CNN and the heads run on all T·B samples at once; the GRU runs fused over
+        each stretch of time in which no episode starts (episodes of fixed length that started together: one
+        or two stretches per rollout), resetting the state of the environments that start a new episode.
+        Returns (action means (T, B, A), values (T, B), core features before the GRU (T, B, hidden)).
+        """
+        steps, batch = episode_start.shape
+        flat = lambda x: x.reshape(steps * batch, *x.shape[2:])  # noqa: E731
+        inputs = self.encode_inputs(flat(images), flat(var_embedding), flat(state)).view(steps, batch, -1)
+        keep = (1.0 - episode_start).unsqueeze(-1)
+        starts = torch.nonzero(episode_start[1:].any(dim=1)).flatten().add(1).tolist()
+        bounds = [0, *starts, steps]
+        cores, hidden = [], hidden.unsqueeze(0)
+        for begin, end in itertools.pairwise(bounds):
+            out, hidden = self.gru(inputs[begin:end], hidden * keep[begin])
+            cores.append(out)
+        core = torch.cat(cores)
+        mean, value = self.heads(flat(core), flat(goal_features))
+        return mean.view(steps, batch, -1), value.view(steps, batch), inputs

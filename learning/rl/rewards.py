@@ -1,0 +1,140 @@
+"""Rewards and goals, computed in the learner for all environments at once.
+
+- `var`: the paper's intrinsic reward r_t = f_I(I_{t+1}) · f_S(S_goal) (+ f_S(S_{t+1}) · f_S(S_goal) with the
+  current sound). The image embedding is computed once per step and is both this reward and, one step later,
+  part of the observation, so the trainer calls `intrinsic_reward_from_embeddings` on embeddings it already
+  has.
+- `sparse`: 1 when an episode ends in success (NoAux+SparseR baseline).
+- `shaped`: progress towards the target from simulator ground truth, plus 1 on success (RSI-style baseline).
+"""
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+RewardKind = Literal["var", "sparse", "shaped"]
+SHAPED_STEP_M = (
+    0.02  # one full action moves the Kuka/Kinova gripper target 2 cm: progress is counted in steps
+)
+
+
+def intrinsic_reward_from_embeddings(
+    image_embedding: torch.Tensor,
+    goal_embedding: torch.Tensor,
+    current_sound_embedding: torch.Tensor | None = None,
+) -> torch.Tensor:
+    """(B, d) unit vectors → (B,) rewards: f_I(I)·f_S(S_goal) [+ f_S(S_t)·f_S(S_goal)]."""
+    reward = (image_embedding * goal_embedding).sum(dim=-1)
+    if current_sound_embedding is not None:
+        reward = reward + (current_sound_embedding * goal_embedding).sum(dim=-1)
+    return reward
+
+
+def sparse_reward(done: np.ndarray, final_success: np.ndarray) -> np.ndarray:
+    return (done & final_success).astype(np.float32)
+
+
+def shaped_reward(
+    distance_before: np.ndarray, distance_after: np.ndarray, done: np.ndarray, final_success: np.ndarray
+) -> np.ndarray:
+    """Distance decrease in action steps (ground truth, one simulator query per step) plus 1 for success."""
+    progress = (distance_before - distance_after) / SHAPED_STEP_M
+    return (np.nan_to_num(progress) + sparse_reward(done, final_success)).astype(np.float32)
+
+
+@dataclass
+class ClipBank:
+    """Sound clips (MFCC features) with their intents (-1 = unknown, e.g. a household recording not matched
+    to an intent) and, when a VAR is given, their f_S embeddings computed once."""
+
+    features: np.ndarray  # (N, 100, 40) float32
+    intents: np.ndarray  # (N,) int64
+    embeddings: torch.Tensor | None = None  # (N, d)
+
+    def __post_init__(self) -> None:
+        if self.features.ndim != 3 or self.features.shape[1:] != (100, 40):
+            raise ValueError(f"clip features must be shaped (N, 100, 40), got {self.features.shape}")
+        if len(self.features) == 0:
+            raise ValueError("no goal clips: give at least one clip")
+        if len(self.intents) != len(self.features):
+            raise ValueError("one intent per clip is needed (use -1 for unknown)")
+        known = self.intents[self.intents >= 0]
+        self._by_intent = {int(k): np.flatnonzero(self.intents == k) for k in np.unique(known)}
+        self._any = np.arange(len(self.features))
+
+    def embed(self, var: torch.nn.Module, batch: int = 512) -> "ClipBank":
+        with torch.inference_mode():
+            chunks = [
+                var.encode_sound(torch.from_numpy(self.features[i : i + batch])).float()
+                for i in range(0, len(self.features), batch)
+            ]
+        self.embeddings = torch.cat(chunks).clone()
+        return self
+
+    @property
+    def has_intents(self) -> bool:
+        return bool(self._by_intent)
+
+    def sample(self, intents: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """One clip index per requested intent (uniform over that intent's clips; over all clips when the bank
+        has no intents)."""
+        picks = np.empty(len(intents), dtype=np.int64)
+        for i, intent in enumerate(intents):
+            pool = self._by_intent.get(int(intent), self._any) if self._by_intent else self._any
+            if self._by_intent and int(intent) not in self._by_intent:
+                raise ValueError(
+                    f"no goal clip for intent {int(intent)}; the clip list must cover every intent"
+                )
+            picks[i] = pool[rng.integers(len(pool))]
+        return picks
+
+
+def corpus_bank(name: str, splits: str | list[str], data_dir: Path | None = None) -> ClipBank:
+    from learning.sounds import load_corpus
+
+    corpus = load_corpus(name, data_dir).subset(splits)
+    return ClipBank(np.asarray(corpus.features, dtype=np.float32), np.asarray(corpus.intent, dtype=np.int64))
+
+
+def clip_bank_from_paths(specs: list[str]) -> ClipBank:
+    """`[INTENT:]PATH` entries: a WAV/audio file or a .npy of MFCC features, (100, 40) or (N, 100, 40)."""
+    from learning.audio import features_from_bytes
+
+    features, intents = [], []
+    for spec in specs:
+        intent_text, sep, path_text = spec.partition(":")
+        if sep and intent_text.isdigit():
+            intent, path = int(intent_text), Path(path_text)
+        else:
+            intent, path = -1, Path(spec)
+        if not path.exists():
+            raise FileNotFoundError(f"goal clip {path} does not exist")
+        if path.suffix == ".npy":
+            array = np.load(path).astype(np.float32)
+            array = array[None] if array.ndim == 2 else array
+        else:
+            array = features_from_bytes(path.read_bytes())[None]
+        features.append(array)
+        intents += [intent] * len(array)
+    return ClipBank(np.concatenate(features), np.asarray(intents, dtype=np.int64))
+
+
+class CurrentSound:
+    """S_t: a random training clip of the intent heard now, silence when nothing is — as embeddings."""
+
+    def __init__(self, bank: ClipBank, silence_embedding: torch.Tensor) -> None:
+        if bank.embeddings is None:
+            raise ValueError("embed the clip bank with the VAR first")
+        self.bank = bank
+        self.silence = silence_embedding.reshape(-1)
+
+    def embeddings(self, heard: np.ndarray, rng: np.random.Generator) -> torch.Tensor:
+        out = self.silence.expand(len(heard), -1).clone()
+        heard_any = heard >= 0
+        if heard_any.any():
+            picks = self.bank.sample(heard[heard_any], rng)
+            out[torch.from_numpy(heard_any)] = self.bank.embeddings[torch.from_numpy(picks)]
+        return out

@@ -1,0 +1,350 @@
+"""Triplet data: images the robot saw with the intent a person would name, and sound draws to make triplets.
+
+On disk (`data_dir()/var/datasets/<name>/`): `images.npy` (uint8 N×H×W×3, memory-mapped), `heard.npy` (int64,
+-1 = nothing or several things in view), `meta.json`. The heard id is only used to pick sound clips; the model
+never sees it.
+"""
+
+import dataclasses
+import json
+import math
+import multiprocessing
+import queue
+import time
+import traceback
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from varbot.paths import data_subdir
+
+NOTHING_HEARD = -1
+SILENCE_ID = -1  # in drawn sound ids: the all-zero MFCC
+CHUNK = 256  # images a worker renders before writing them out and reporting progress
+
+
+class DatasetError(ValueError):
+    """A triplet dataset that is missing, incomplete or does not match what was asked for."""
+
+
+def datasets_root() -> Path:
+    return data_subdir("var", "datasets")
+
+
+def dataset_path(name_or_path: str | Path) -> Path:
+    """A bare name lives under the data dir; anything with a slash is taken as a path."""
+    text = str(name_or_path)
+    return Path(text) if ("/" in text or text.startswith(".")) else datasets_root() / text
+
+
+@dataclass
+class ImageDataset:
+    path: Path
+    images: np.ndarray  # memory-mapped uint8 (N, H, W, 3)
+    heard: np.ndarray  # int64 (N,)
+    meta: dict[str, Any]
+
+    def __len__(self) -> int:
+        return len(self.heard)
+
+    @property
+    def image_size(self) -> int:
+        return int(self.images.shape[1])
+
+    def read_images(self, indices: np.ndarray) -> np.ndarray:
+        """A copy of the images at `indices` (read in sorted order: kind to the page cache)."""
+        order = np.argsort(indices, kind="stable")
+        batch = np.empty((len(indices), *self.images.shape[1:]), dtype=np.uint8)
+        batch[order] = self.images[indices[order]]
+        return batch
+
+
+def open_dataset(name_or_path: str | Path) -> ImageDataset:
+    path = dataset_path(name_or_path)
+    meta_file = path / "meta.json"
+    if not meta_file.is_file():
+        raise DatasetError(
+            f"No complete triplet dataset at {path} (meta.json missing). Collect it with "
+            f"`varbot var collect WORLD --triplets N --name {path.name}`."
+        )
+    meta = json.loads(meta_file.read_text())
+    images = np.load(path / "images.npy", mmap_mode="r")
+    heard = np.load(path / "heard.npy")
+    if len(images) != len(heard) or len(heard) != meta["count"]:
+        raise DatasetError(
+            f"{path} is inconsistent: {len(images)} images, {len(heard)} labels, meta says "
+            f"{meta['count']}. Collect it again with --overwrite."
+        )
+    return ImageDataset(path=path, images=images, heard=heard, meta=meta)
+
+
+# ---------------------------------------------------------------- collection
+
+
+def _worker_seeds(seed: int, workers: int) -> list[int]:
+    return [int(s.generate_state(1)[0]) for s in np.random.SeedSequence(seed).spawn(workers)]
+
+
+def _collect_part(
+    path: str, world: str, start: int, count: int, seed: int, image_size: int, domain: Any, report: Any
+) -> None:
+    """Render `count` random views into rows [start, start+count) of the dataset files."""
+    try:
+        from sim.explore import random_views
+
+        images = np.load(Path(path) / "images.npy", mmap_mode="r+")
+        heard = np.load(Path(path) / "heard.npy", mmap_mode="r+")
+        buffer_images = np.empty((CHUNK, image_size, image_size, 3), dtype=np.uint8)
+        buffer_heard = np.empty(CHUNK, dtype=np.int64)
+        filled, written = 0, start
+        for image, heard_id, _state in random_views(
+            world, count, seed=seed, image_size=image_size, domain=domain
+        ):
+            buffer_images[filled] = image
+            buffer_heard[filled] = NOTHING_HEARD if heard_id is None else heard_id
+            filled += 1
+            if filled == CHUNK:
+                images[written : written + filled] = buffer_images
+                heard[written : written + filled] = buffer_heard
+                written += filled
+                report.put(("progress", filled))
+                filled = 0
+        if filled:
+            images[written : written + filled] = buffer_images[:filled]
+            heard[written : written + filled] = buffer_heard[:filled]
+            written += filled
+            report.put(("progress", filled))
+        images.flush()
+        heard.flush()
+        if written != start + count:
+            raise RuntimeError(f"random_views gave {written - start} views, {count} were asked for")
+        report.put(("done", None))
+    except BaseException:
+        report.put(("error", traceback.format_exc()))
+
+
+def _describe(world: str, count: int, seed: int, image_size: int, domain: Any) -> dict[str, Any]:
+    description = {
+        "world": world,
+        "count": count,
+        "seed": seed,
+        "image_size": image_size,
+        "domain": dataclasses.asdict(domain) if domain is not None else None,
+    }
+    return json.loads(json.dumps(description))  # as it reads back from meta.json (tuples become lists)
+
+
+def collect_dataset(
+    world: str,
+    count: int,
+    name: str | Path,
+    seed: int = 0,
+    image_size: int = 96,
+    domain: Any = None,
+    workers: int = 2,
+    overwrite: bool = False,
+    progress: bool = True,
+) -> ImageDataset:
+    """Let the robot move at random in `world` and store `count` views, each with what a person would say.
+
+    Work is split over `workers` spawned processes (each its own seed) writing straight into the memory-mapped
+    files. An identical complete dataset is reused; a different one is only replaced with `overwrite`.
+    """
+    from sim import WORLDS
+
+    if world not in WORLDS:
+        raise DatasetError(f"Unknown world '{world}'; choose one of {sorted(WORLDS)}.")
+    if count <= 0:
+        raise DatasetError(f"--triplets must be positive, got {count}.")
+    path = dataset_path(name)
+    wanted = _describe(world, count, seed, image_size, domain)
+    if (path / "meta.json").is_file():
+        existing = json.loads((path / "meta.json").read_text())
+        if all(existing.get(key) == value for key, value in wanted.items()) and not overwrite:
+            return open_dataset(path)
+        if not overwrite:
+            raise DatasetError(
+                f"{path} already holds a different dataset ({existing['world']}, "
+                f"{existing['count']} views); pass --overwrite or choose another --name."
+            )
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "meta.json").unlink(missing_ok=True)
+    np.lib.format.open_memmap(path / "images.npy", "w+", np.uint8, (count, image_size, image_size, 3)).flush()
+    np.lib.format.open_memmap(path / "heard.npy", "w+", np.int64, (count,)).flush()
+
+    workers = max(1, min(workers, math.ceil(count / CHUNK)))
+    sizes = [count // workers + (1 if i < count % workers else 0) for i in range(workers)]
+    starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
+    started = time.perf_counter()
+    _run_workers(path, world, starts, sizes, _worker_seeds(seed, workers), image_size, domain, progress)
+    elapsed = time.perf_counter() - started
+
+    heard = np.load(path / "heard.npy")
+    wanted.update(
+        workers=workers,
+        collection_seconds=round(elapsed, 2),
+        views_per_second=round(count / elapsed, 1),
+        heard_counts={str(k): int((heard == k).sum()) for k in sorted(set(heard.tolist()))},
+    )
+    (path / "meta.json").write_text(json.dumps(wanted, indent=2))
+    return open_dataset(path)
+
+
+def _run_workers(
+    path: Path,
+    world: str,
+    starts: list[int],
+    sizes: list[int],
+    seeds: list[int],
+    image_size: int,
+    domain: Any,
+    progress: bool,
+) -> None:
+    if len(sizes) == 1:  # no process to spawn: render here (small datasets, tests)
+        report: Any = queue.SimpleQueue()
+        _collect_part(str(path), world, starts[0], sizes[0], seeds[0], image_size, domain, report)
+        _drain(report, [None], sum(sizes), progress, world)
+        return
+    context = multiprocessing.get_context("spawn")  # never fork a process that may hold torch threads
+    report = context.Queue()
+    processes = [
+        context.Process(
+            target=_collect_part,
+            args=(str(path), world, start, size, seed, image_size, domain, report),
+            daemon=True,
+        )
+        for start, size, seed in zip(starts, sizes, seeds, strict=True)
+    ]
+    for process in processes:
+        process.start()
+    try:
+        _drain(report, processes, sum(sizes), progress, world)
+    finally:
+        for process in processes:
+            if process.is_alive():
+                process.terminate()
+            process.join()
+
+
+def _drain(report: Any, processes: list[Any], total: int, progress: bool, world: str) -> None:
+    pending = len(processes)
+    with tqdm(total=total, desc=f"collect {world}", unit="view", disable=not progress) as bar:
+        while pending:
+            try:
+                kind, value = report.get(timeout=5.0)
+            except queue.Empty:
+                dead = [p for p in processes if p is not None and p.exitcode not in (None, 0)]
+                if dead:
+                    raise RuntimeError(f"a collection worker died (exit code {dead[0].exitcode})") from None
+                continue
+            if kind == "progress":
+                bar.update(value)
+            elif kind == "done":
+                pending -= 1
+            else:
+                raise RuntimeError(f"a collection worker failed:\n{value}")
+
+
+# ---------------------------------------------------------------- sounds for triplets
+
+
+@dataclass
+class SoundBank:
+    """Clips grouped by intent so that a clip of intent k can be drawn for a whole batch at once."""
+
+    features: np.ndarray  # (M, 100, 40) float32, sorted by intent
+    intent: np.ndarray  # (M,)
+    starts: np.ndarray  # (K,) first row of each intent
+    counts: np.ndarray  # (K,)
+
+    @classmethod
+    def build(cls, features: np.ndarray, intent: np.ndarray, num_intents: int) -> "SoundBank":
+        order = np.argsort(intent, kind="stable")
+        intent = intent[order]
+        counts = np.bincount(intent, minlength=num_intents)[:num_intents]
+        if (counts == 0).any():
+            missing = np.flatnonzero(counts == 0).tolist()
+            raise DatasetError(
+                f"The sound selection has no clip for intent(s) {missing}; every intent needs one."
+            )
+        starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        return cls(np.ascontiguousarray(features[order], dtype=np.float32), intent, starts, counts)
+
+    @classmethod
+    def from_corpus(
+        cls,
+        corpus: Any,
+        splits: str | list[str] | tuple[str, ...] = ("train",),
+        speakers: list[str] | tuple[str, ...] | None = None,
+    ) -> "SoundBank":
+        chosen = corpus.subset(list(splits) if not isinstance(splits, str) else splits)
+        mask = np.ones(len(chosen.intent), dtype=bool)
+        if speakers:
+            mask = np.isin(chosen.speaker, list(speakers))
+            if not mask.any():
+                raise DatasetError(f"No clip by speaker(s) {list(speakers)} in splits {splits}.")
+        return cls.build(chosen.features[mask], chosen.intent[mask], len(corpus.intent_names))
+
+    @property
+    def num_intents(self) -> int:
+        return len(self.counts)
+
+    def draw(self, sound_ids: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """One clip per id (intent k, or SILENCE_ID for the all-zero MFCC)."""
+        out = np.zeros((len(sound_ids), *self.features.shape[1:]), dtype=np.float32)
+        spoken = sound_ids >= 0
+        ids = sound_ids[spoken]
+        rows = self.starts[ids] + (rng.random(len(ids)) * self.counts[ids]).astype(np.int64)
+        out[spoken] = self.features[rows]
+        return out
+
+
+def triplet_sound_ids(heard: np.ndarray, num_intents: int, rng: np.random.Generator):
+    """Positive and negative sound ids for images with these heard ids.
+
+    Target in view (k): positive = a clip of k; negative = uniformly one of the other intents or silence.
+    Nothing in view: positive = silence; negative = a clip of any intent.
+    """
+    positive = np.where(heard >= 0, heard, SILENCE_ID)
+    draw = rng.integers(0, num_intents, size=len(heard))
+    shifted = np.where(draw >= heard, draw + 1, draw)  # skip k itself; value num_intents means silence
+    negative = np.where(heard >= 0, np.where(shifted == num_intents, SILENCE_ID, shifted), draw)
+    return positive, negative
+
+
+def draw_triplet_sounds(heard: np.ndarray, bank: SoundBank, rng: np.random.Generator):
+    positive_ids, negative_ids = triplet_sound_ids(heard, bank.num_intents, rng)
+    return bank.draw(positive_ids, rng), bank.draw(negative_ids, rng)
+
+
+def write_dataset(name: str | Path, images: np.ndarray, heard: np.ndarray, **meta: Any) -> ImageDataset:
+    """Store images someone already has (e.g. snapshots from the robot) as a triplet dataset."""
+    images = np.asarray(images)
+    heard = np.asarray(heard, dtype=np.int64)
+    if (
+        images.dtype != np.uint8
+        or images.ndim != 4
+        or images.shape[3] != 3
+        or images.shape[1] != images.shape[2]
+    ):
+        raise DatasetError(f"images must be uint8 (N, S, S, 3), got {images.dtype} {images.shape}.")
+    if len(images) != len(heard):
+        raise DatasetError(f"{len(images)} images but {len(heard)} heard ids.")
+    path = dataset_path(name)
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "meta.json").unlink(missing_ok=True)
+    np.save(path / "images.npy", images)
+    np.save(path / "heard.npy", heard)
+    meta = {
+        "world": None,
+        "seed": None,
+        "domain": None,
+        **meta,
+        "count": len(heard),
+        "image_size": images.shape[1],
+    }
+    (path / "meta.json").write_text(json.dumps(meta, indent=2))
+    return open_dataset(path)

@@ -1,0 +1,131 @@
+"""The two encoders of the VAR: f_I over camera images and f_S over MFCC features, onto the unit sphere."""
+
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+MFCC_FRAMES = 100
+MFCC_COEFFICIENTS = 40
+
+
+@dataclass(frozen=True)
+class VARConfig:
+    """Everything that fixes the shape of a VAR; stored in every checkpoint and compared on load."""
+
+    image_size: int = 96
+    embedding_dim: int = 3
+    image_channels: tuple[int, ...] = (8, 16, 32, 64, 128)
+    sound_channels: tuple[int, ...] = (32, 64, 96)
+    hidden: int = 128
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "VARConfig":
+        known = {k: v for k, v in data.items() if k in cls.__dataclass_fields__}
+        for key in ("image_channels", "sound_channels"):
+            if key in known:
+                known[key] = tuple(known[key])
+        return cls(**known)
+
+
+def _conv_block(in_channels: int, out_channels: int) -> nn.Sequential:
+    return nn.Sequential(
+        nn.Conv2d(in_channels, out_channels, kernel_size=3, stride=2, padding=1, bias=False),
+        nn.BatchNorm2d(out_channels),
+        nn.ReLU(inplace=True),
+    )
+
+
+class ImageEncoder(nn.Module):
+    """Stride-2 3×3 convolutions (the reference's five), flattened so where things are in view is kept."""
+
+    def __init__(self, config: VARConfig) -> None:
+        super().__init__()
+        layers, channels, size = [], 3, config.image_size
+        for out_channels in config.image_channels:
+            layers.append(_conv_block(channels, out_channels))
+            channels, size = out_channels, (size + 1) // 2
+        self.features = nn.Sequential(*layers)
+        self.head = nn.Sequential(
+            nn.Flatten(),
+            nn.Linear(channels * size * size, config.hidden),
+            nn.ReLU(inplace=True),
+            nn.Linear(config.hidden, config.embedding_dim),
+        )
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        x = images.permute(0, 3, 1, 2).float().div_(127.5).sub_(1.0)
+        x = x.contiguous(memory_format=torch.channels_last)
+        return self.head(self.features(x))
+
+
+class SoundEncoder(nn.Module):
+    """1-D convolutions over time with the 40 MFCC coefficients as channels, then max over time."""
+
+    def __init__(self, config: VARConfig) -> None:
+        super().__init__()
+        layers, channels = [], MFCC_COEFFICIENTS
+        for out_channels in config.sound_channels:
+            layers += [
+                nn.Conv1d(channels, out_channels, kernel_size=5, stride=2, padding=2, bias=False),
+                nn.BatchNorm1d(out_channels),
+                nn.ReLU(inplace=True),
+            ]
+            channels = out_channels
+        self.features = nn.Sequential(*layers)
+        self.head = nn.Sequential(
+            nn.Linear(2 * channels, config.hidden),
+            nn.ReLU(inplace=True),
+            nn.Linear(config.hidden, config.embedding_dim),
+        )
+        # Per-coefficient standardisation, set from the training corpus (`set_sound_statistics`); silence (all
+        # zeros) stays one fixed input after it.
+        self.register_buffer("mfcc_mean", torch.zeros(MFCC_COEFFICIENTS))
+        self.register_buffer("mfcc_std", torch.ones(MFCC_COEFFICIENTS))
+
+    def forward(self, mfcc: torch.Tensor) -> torch.Tensor:
+        x = (mfcc.float() - self.mfcc_mean) / self.mfcc_std
+        x = self.features(x.transpose(1, 2))
+        pooled = torch.cat([x.amax(dim=2), x.mean(dim=2)], dim=1)
+        return self.head(pooled)
+
+
+class VAR(nn.Module):
+    """f_I and f_S; both return L2-normalised embeddings in R^d."""
+
+    def __init__(self, config: VARConfig | None = None) -> None:
+        super().__init__()
+        self.config = config or VARConfig()
+        self.image_encoder = ImageEncoder(self.config)
+        self.sound_encoder = SoundEncoder(self.config)
+
+    def encode_image(self, images: torch.Tensor) -> torch.Tensor:
+        """uint8 (B, H, W, 3) camera images, channels last, as rendered → (B, d) unit vectors."""
+        size = self.config.image_size
+        if images.ndim != 4 or tuple(images.shape[1:]) != (size, size, 3):
+            raise ValueError(
+                f"encode_image expects uint8 images shaped (B, {size}, {size}, 3), "
+                f"got {tuple(images.shape)}; this VAR was built for {size}×{size} images."
+            )
+        if images.dtype != torch.uint8:
+            raise ValueError(f"encode_image expects uint8 pixels (0..255), got {images.dtype}.")
+        return F.normalize(self.image_encoder(images), dim=1)
+
+    def encode_sound(self, mfcc: torch.Tensor) -> torch.Tensor:
+        """MFCC features (B, 100, 40) → (B, d) unit vectors. Silence is an all-zero MFCC."""
+        if mfcc.ndim != 3 or tuple(mfcc.shape[1:]) != (MFCC_FRAMES, MFCC_COEFFICIENTS):
+            raise ValueError(
+                f"encode_sound expects MFCC features shaped (B, {MFCC_FRAMES}, {MFCC_COEFFICIENTS}), "
+                f"got {tuple(mfcc.shape)}; compute them with learning.audio.features_from_bytes."
+            )
+        return F.normalize(self.sound_encoder(mfcc), dim=1)
+
+    def set_sound_statistics(self, features: torch.Tensor) -> None:
+        """Standardise MFCC coefficients with the mean/std of these (N, 100, 40) training features."""
+        flat = features.float().reshape(-1, MFCC_COEFFICIENTS)
+        self.sound_encoder.mfcc_mean.copy_(flat.mean(dim=0))
+        self.sound_encoder.mfcc_std.copy_(flat.std(dim=0).clamp_min(1e-3))

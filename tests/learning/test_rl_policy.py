@@ -1,0 +1,97 @@
+"""The recurrent policy: its state is cleared where an episode starts; the update sees what rollouts saw."""
+
+import torch
+
+from learning.rl.policy import Policy, PolicyConfig, downsample_images
+
+T, B = 12, 3
+
+
+def make_inputs(seed: int = 0) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    return {
+        "images": torch.randint(0, 256, (T, B, 16, 16, 3), dtype=torch.uint8, generator=g),
+        "var_embedding": torch.randn(T, B, 3, generator=g),
+        "state": torch.randn(T, B, 2, generator=g),
+        "goal": torch.randn(B, 3, generator=g),
+    }
+
+
+def policy() -> Policy:
+    torch.manual_seed(0)
+    return Policy(PolicyConfig(image_size=16, state_dim=2, policy_image_size=16)).eval()
+
+
+def test_an_episode_start_clears_the_recurrent_state() -> None:
+    net, x = policy(), make_inputs()
+    goal = net.encode_goal(x["goal"])
+    busy = torch.randn(B, net.config.hidden)
+    with torch.no_grad():
+        mean_fresh, value_fresh, h_fresh = net.step(
+            x["images"][0], x["var_embedding"][0], x["state"][0], goal, net.initial_state(B), torch.zeros(B)
+        )
+        mean_reset, value_reset, h_reset = net.step(
+            x["images"][0], x["var_embedding"][0], x["state"][0], goal, busy, torch.ones(B)
+        )
+        mean_busy, _, _ = net.step(
+            x["images"][0], x["var_embedding"][0], x["state"][0], goal, busy, torch.zeros(B)
+        )
+    assert torch.equal(h_fresh, h_reset) and torch.equal(mean_fresh, mean_reset)
+    assert torch.equal(value_fresh, value_reset)
+    assert not torch.allclose(mean_busy, mean_fresh)  # the state does matter when it is kept
+
+
+def test_sequence_evaluation_matches_step_by_step_rollout_with_resets_mid_sequence() -> None:
+    net, x = policy(), make_inputs(1)
+    starts = torch.zeros(T, B)
+    starts[0] = 1
+    starts[5, 0] = 1  # env 0 starts a new episode at t = 5, env 2 at t = 9
+    starts[9, 2] = 1
+    goal = net.encode_goal(x["goal"])
+    hidden = torch.randn(B, net.config.hidden)
+    means, values = [], []
+    with torch.no_grad():
+        h = hidden
+        for t in range(T):
+            mean, value, h = net.step(
+                x["images"][t], x["var_embedding"][t], x["state"][t], goal, h, starts[t]
+            )
+            means.append(mean)
+            values.append(value)
+        seq_mean, seq_value, _ = net.evaluate_sequences(
+            x["images"], x["var_embedding"], x["state"], goal.expand(T, B, -1), hidden, starts
+        )
+    assert torch.allclose(seq_mean, torch.stack(means), atol=1e-5)
+    assert torch.allclose(seq_value, torch.stack(values), atol=1e-5)
+
+
+def test_what_happened_before_an_episode_start_does_not_leak_into_the_new_episode() -> None:
+    net, x = policy(), make_inputs(2)
+    starts = torch.zeros(T, B)
+    starts[6] = 1
+    goal = net.encode_goal(x["goal"]).expand(T, B, -1)
+    other = make_inputs(3)
+    with torch.no_grad():
+        a, _, _ = net.evaluate_sequences(
+            x["images"], x["var_embedding"], x["state"], goal, net.initial_state(B), starts
+        )
+        mixed = {k: v.clone() for k, v in x.items()}
+        for key in ("images", "var_embedding", "state"):
+            mixed[key][:6] = other[key][:6]  # a different first episode
+        b, _, _ = net.evaluate_sequences(
+            mixed["images"],
+            mixed["var_embedding"],
+            mixed["state"],
+            goal,
+            torch.randn(B, net.config.hidden),
+            starts,
+        )
+    assert torch.allclose(a[6:], b[6:], atol=1e-6)
+    assert not torch.allclose(a[:6], b[:6])
+
+
+def test_downsampling_keeps_uint8_channels_last_images() -> None:
+    images = torch.full((2, 32, 32, 3), 200, dtype=torch.uint8)
+    small = downsample_images(images, 16)
+    assert small.shape == (2, 16, 16, 3) and small.dtype == torch.uint8
+    assert (small == 200).all()
