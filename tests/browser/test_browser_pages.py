@@ -286,6 +286,15 @@ def test_a_quick_run_started_by_an_admin_moves_the_progress_bar_to_done(
         assert float(bar.get_attribute("value") or 0) == 1.0
         # live updates arrived while it ran: intermediate bar values or at least the stage names changing
         assert len(seen) > 2 or len(stages) > 2, f"no live updates: bar {sorted(seen)}, stages {stages}"
+        card = page.locator(f"[data-run-id='{run_id}']")
+        # the promotion gate's verdict and its reasons, the saved training curves, the before/after figure
+        verdict = card.locator(".message").filter(has_text=re.compile(r"^(Promoted|Not promoted)")).inner_text()
+        assert "triplet accuracy" in verdict, verdict
+        charts = card.locator("svg.chart")
+        labels = [charts.nth(i).get_attribute("aria-label") or "" for i in range(charts.count())]
+        assert any(label.startswith("Loss. VAR loss") for label in labels), labels
+        assert any(label.startswith("Return. policy episode return") for label in labels), labels
+        assert card.locator("figure.before-after").count() == 1
         screenshot(page, "progress")
     finally:
         worker.terminate()

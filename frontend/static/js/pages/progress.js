@@ -7,45 +7,82 @@ const live = new Map(); // id → {metric: [[seconds, value], …]} collected fr
 const cards = new Map();
 const LIVE_METRIC = /loss|success|accuracy|reward|return/i;
 
+const X_KEYS = ["epoch", "update", "env_steps", "step"];
+const STAGE_NAMES = { var_finetune: "VAR", policy_improve: "policy", evaluate: "evaluation" };
+
 function isNumberList(value) {
   return Array.isArray(value) && value.length > 1 && value.every((v) => Number.isFinite(v) || (Array.isArray(v) && v.length === 2));
 }
 
-/** Curves saved with the run: metrics.curves {name: [...]} or any metric that is a list of numbers. */
+/** The worker saves curves per stage as lists of records ({epoch, loss, accuracy, …} or {update, recent_success, …});
+ * each plotted metric becomes a series "stage metric" of [x, y] points. Plain number lists are taken as they are. */
 function savedCurves(metrics) {
   const curves = {};
-  for (const [key, value] of Object.entries(metrics.curves || {})) if (isNumberList(value)) curves[key] = value;
-  for (const [key, value] of Object.entries(metrics)) if (isNumberList(value)) curves[key] = value;
-  return curves;
+  for (const [stage, points] of Object.entries(metrics.curves || {})) {
+    if (isNumberList(points)) {
+      curves[stage] = points;
+      continue;
+    }
+    if (!Array.isArray(points)) continue;
+    const records = points.filter((p) => p && typeof p === "object" && !Array.isArray(p));
+    const xKey = X_KEYS.find((k) => records.some((p) => Number.isFinite(p[k])));
+    for (const record of records) {
+      for (const [key, value] of Object.entries(record)) {
+        if (!LIVE_METRIC.test(key) || !Number.isFinite(value)) continue;
+        const name = `${STAGE_NAMES[stage] || stage} ${key.replaceAll("_", " ")}`;
+        const x = xKey && Number.isFinite(record[xKey]) ? record[xKey] : (curves[name] || []).length;
+        (curves[name] = curves[name] || []).push([x, value]);
+      }
+    }
+  }
+  return Object.fromEntries(Object.entries(curves).filter(([, points]) => points.length > 1));
 }
 
 function promotionText(run) {
-  const m = run.metrics || {};
-  const p = m.promotion;
-  if (p && typeof p === "object") {
-    const reasons = [].concat(p.reasons || p.reason || []).join(" ");
-    return `${p.promoted ? "Promoted: the new version is active." : "Not promoted: the active version stays."} ${reasons}`.trim();
-  }
-  const reasons = m.promotion_reasons || m.promotion_reason;
-  if (reasons) return `${m.promoted ? "Promoted." : "Not promoted."} ${[].concat(reasons).join(" ")}`;
-  if (typeof m.promoted === "boolean") return m.promoted ? "Promoted: the new version is active." : "Not promoted: the active version stays.";
-  return "";
+  const gate = (run.metrics || {}).gate;
+  if (!gate || typeof gate !== "object") return "";
+  const verdict = gate.promoted ? "Promoted: the new version is active." : "Not promoted: the active version stays.";
+  return `${verdict} ${[].concat(gate.reasons || []).join("; ")}`.trim();
 }
 
+/** Before = the active version's scores, after = the candidate's (metrics.evaluation from the promotion gate). */
+function beforeAfter(metrics) {
+  const evaluation = metrics.evaluation || {};
+  if (!evaluation.candidate || !evaluation.active) return null;
+  const names = { triplet_accuracy: "triplet accuracy", sim_success: "sim success" };
+  const before = {};
+  const after = {};
+  for (const [key, label] of Object.entries(names)) {
+    if (Number.isFinite(evaluation.active[key]) && Number.isFinite(evaluation.candidate[key])) {
+      before[label] = evaluation.active[key];
+      after[label] = evaluation.candidate[key];
+    }
+  }
+  return Object.keys(after).length ? { before, after } : null;
+}
+
+/** Latest figures of each stage, flattened to "stage metric" rows. */
 function scalarRows(metrics) {
-  return Object.entries(metrics)
-    .filter(([, v]) => typeof v === "number" || typeof v === "string" || typeof v === "boolean")
-    .map(([k, v]) => element("tr", {}, element("th", { scope: "row", text: k }), element("td", { text: typeof v === "number" ? v.toPrecision(4) : String(v) })));
+  const flat = {};
+  for (const [group, values] of Object.entries(metrics.latest || {})) {
+    for (const [key, value] of Object.entries(values || {})) flat[`${STAGE_NAMES[group] || group} ${key.replaceAll("_", " ")}`] = value;
+  }
+  for (const [key, value] of Object.entries(metrics)) flat[key.replaceAll("_", " ")] = value;
+  return Object.entries(flat)
+    .filter(([, v]) => (typeof v === "number" && Number.isFinite(v)) || typeof v === "string" || typeof v === "boolean")
+    .map(([k, v]) => element("tr", {}, element("th", { scope: "row", text: k }), element("td", { text: typeof v === "number" ? String(Number(v.toPrecision(4))) : String(v) })));
 }
 
 function record(run) {
   const t = (Date.parse(run.updated_at) - Date.parse(run.created_at)) / 1000;
   const series = live.get(run.id) || {};
-  for (const [key, value] of Object.entries(run.metrics || {})) {
-    if (typeof value === "number" && Number.isFinite(value) && LIVE_METRIC.test(key)) {
-      series[key] = series[key] || [];
-      const last = series[key][series[key].length - 1];
-      if (!last || last[0] !== t) series[key].push([t, value]);
+  for (const [group, values] of Object.entries((run.metrics || {}).latest || {})) {
+    for (const [key, value] of Object.entries(values || {})) {
+      if (!Number.isFinite(value) || !LIVE_METRIC.test(key)) continue;
+      const name = `${STAGE_NAMES[group] || group} ${key.replaceAll("_", " ")}`;
+      series[name] = series[name] || [];
+      const last = series[name][series[name].length - 1];
+      if (!last || last[0] !== t) series[name].push([t, value]);
     }
   }
   live.set(run.id, series);
@@ -61,7 +98,9 @@ function draw(run) {
     list.insertBefore(card, older || null);
   }
   const percent = Math.round(run.progress * 100);
-  const eta = run.metrics && Number.isFinite(run.metrics.eta_s) ? ` · about ${Math.ceil(run.metrics.eta_s / 60)} min left` : "";
+  const etaSeconds = (run.timings || {}).eta_s;
+  const running = run.status === "running";
+  const eta = running && Number.isFinite(etaSeconds) ? ` · about ${Math.max(1, Math.ceil(etaSeconds / 60))} min left` : "";
   card.innerHTML = "";
   card.append(
     element("div", { class: "row" },
@@ -74,14 +113,21 @@ function draw(run) {
   const promotion = promotionText(run);
   if (promotion) card.append(element("p", { class: `message ${/^Promoted/.test(promotion) ? "ok" : "warn"}`, text: promotion }));
   const metrics = run.metrics || {};
-  const curves = { ...(live.get(run.id) || {}), ...savedCurves(metrics) };
+  const saved = savedCurves(metrics);
+  const curves = Object.keys(saved).length ? saved : live.get(run.id) || {};
   const charts = element("div", { class: "grid two" });
-  const losses = Object.fromEntries(Object.entries(curves).filter(([k]) => /loss/i.test(k)));
-  const successes = Object.fromEntries(Object.entries(curves).filter(([k]) => !/loss/i.test(k)));
-  if (Object.keys(losses).length) charts.append(element("figure", {}, lineChart(losses, { title: "Loss" }), element("figcaption", { class: "muted", text: "Loss" })));
-  if (Object.keys(successes).length) charts.append(element("figure", {}, lineChart(successes, { title: "Success" }), element("figcaption", { class: "muted", text: "Success and accuracy" })));
-  if (metrics.before && metrics.after) {
-    charts.append(element("figure", {}, beforeAfterChart(metrics.before, metrics.after), element("figcaption", { class: "muted", text: "Before and after this fine-tune" })));
+  const groups = [
+    ["Loss", /loss/i, "Loss"],
+    ["Return", /return|reward/i, "Episode return (intrinsic reward)"],
+    ["Success", /success|accuracy/i, "Success and accuracy"],
+  ];
+  for (const [title, pattern, caption] of groups) {
+    const series = Object.fromEntries(Object.entries(curves).filter(([k]) => pattern.test(k)));
+    if (Object.keys(series).length) charts.append(element("figure", {}, lineChart(series, { title }), element("figcaption", { class: "muted", text: caption })));
+  }
+  const comparison = beforeAfter(metrics);
+  if (comparison) {
+    charts.append(element("figure", { class: "before-after" }, beforeAfterChart(comparison.before, comparison.after), element("figcaption", { class: "muted", text: "Active version (before) and this run's candidate (after)" })));
   }
   if (charts.children.length) card.append(charts);
   const rows = scalarRows(metrics);
