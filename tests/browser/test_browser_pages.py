@@ -288,7 +288,8 @@ def test_a_quick_run_started_by_an_admin_moves_the_progress_bar_to_done(
         assert len(seen) > 2 or len(stages) > 2, f"no live updates: bar {sorted(seen)}, stages {stages}"
         card = page.locator(f"[data-run-id='{run_id}']")
         # the promotion gate's verdict and its reasons, the saved training curves, the before/after figure
-        verdict = card.locator(".message").filter(has_text=re.compile(r"^(Promoted|Not promoted)")).inner_text()
+        gate_message = card.locator(".message").filter(has_text=re.compile(r"^(Promoted|Not promoted)"))
+        verdict = gate_message.inner_text()
         assert "triplet accuracy" in verdict, verdict
         charts = card.locator("svg.chart")
         labels = [charts.nth(i).get_attribute("aria-label") or "" for i in range(charts.count())]
