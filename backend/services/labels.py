@@ -20,9 +20,10 @@ from sqlalchemy.orm import Session
 from backend import models
 from backend.errors import Conflict, NotFound
 from backend.schemas import ClipPublic, LabelCreate, SnapshotPublic, TripletCount, TripletStats
+from backend.services.pair_leases import pair_leases
 
 SILENCE = "silence"
-_TOP_CANDIDATES = 8  # concurrent labellers of one household get different pairs instead of racing for one
+_TOP_CANDIDATES = 8  # images considered per clip; enough for several members labelling at once
 
 
 def command_key(clip_id: int, name: str | None) -> str:
@@ -143,6 +144,7 @@ def create_label(session: Session, user_id: int, household_id: int, body: LabelC
         },
     )
     session.commit()
+    pair_leases.release((household_id, body.snapshot_id, body.clip_id))
     return {"id": label_id, **label}
 
 
@@ -233,24 +235,40 @@ def _pair(session: Session, snapshot_id: int, clip_id: int) -> tuple[dict[str, A
     return snapshot, clip
 
 
-def next_pair(session: Session, household_id: int, robot_id: int | None) -> PairChoice | None:
+def next_pair(session: Session, user_id: int, household_id: int, robot_id: int | None) -> PairChoice | None:
+    """The pair to ask this member next. A pair just handed to another member of the household is passed
+    over while that member answers it (`pair_leases`); if every candidate is taken, one is asked anyway."""
     clips = _clips_in_asking_order(session, household_id)
     if not clips:
         return None
-    informative = _informative_pair(session, household_id, robot_id, clips)
-    if informative is not None:
-        return informative
+    choice = _informative_pair(session, user_id, household_id, robot_id, clips) or _balanced_pair(
+        session, user_id, household_id, robot_id, clips
+    )
+    if choice is not None:
+        pair_leases.grant((household_id, choice.snapshot["id"], choice.clip["id"]), user_id)
+    return choice
+
+
+def _balanced_pair(
+    session: Session, user_id: int, household_id: int, robot_id: int | None, clips: list[_Command]
+) -> PairChoice | None:
     connection = session.connection()
+    fallback: tuple[int, int] | None = None
     for clip in clips:
         rows = connection.execute(
             _CANDIDATES[robot_id is not None],
             {"household_id": household_id, "clip_id": clip.clip_id, "robot_id": robot_id},
         ).all()
-        if rows:
-            best = rows[0][0]
-            snapshot_id = random.choice([row[1] for row in rows if row[0] == best])
-            return PairChoice(*_pair(session, snapshot_id, clip.clip_id), "balanced")
-    return None
+        if not rows:
+            continue
+        best = rows[0][0]
+        most_answered = [row[1] for row in rows if row[0] == best]
+        random.shuffle(most_answered)  # the most-answered images first, in random order, then the rest
+        for snapshot_id in [*most_answered, *(row[1] for row in rows if row[0] != best)]:
+            if not pair_leases.held_by_another((household_id, snapshot_id, clip.clip_id), user_id):
+                return PairChoice(*_pair(session, snapshot_id, clip.clip_id), "balanced")
+        fallback = fallback or (most_answered[0], clip.clip_id)
+    return None if fallback is None else PairChoice(*_pair(session, *fallback), "balanced")
 
 
 def _active_models(robot: bool) -> Select[Any]:
@@ -265,7 +283,7 @@ _ACTIVE_MODELS = {robot: _active_models(robot) for robot in (False, True)}
 
 
 def _informative_pair(
-    session: Session, household_id: int, robot_id: int | None, clips: list[_Command]
+    session: Session, user_id: int, household_id: int, robot_id: int | None, clips: list[_Command]
 ) -> PairChoice | None:
     """Once an active model has embedded the household's data: the unanswered (image, clip) whose image
     sits most nearly between the clip's command cluster and another command's cluster on the sphere."""
@@ -319,9 +337,12 @@ def _informative_pair(
             # 1 when the image is as close to this command as to its nearest rival, 0 at opposite poles.
             score = 1.0 - np.abs(similarity[:, column] - others) / 2.0
             for index in np.argsort(-score)[: _TOP_CANDIDATES * 4]:
-                if (int(snapshot_ids[index]), clip.clip_id) not in answered:
+                snapshot_id = int(snapshot_ids[index])
+                if (snapshot_id, clip.clip_id) not in answered and not pair_leases.held_by_another(
+                    (household_id, snapshot_id, clip.clip_id), user_id
+                ):
                     if best is None or score[index] > best[0]:
-                        best = (float(score[index]), int(snapshot_ids[index]), clip.clip_id)
+                        best = (float(score[index]), snapshot_id, clip.clip_id)
                     break
         if best is not None:
             score, snapshot_id, clip_id = best

@@ -216,6 +216,9 @@ def sessions(engine) -> Iterator[Callable]:  # type: ignore[no-untyped-def,type-
     yield factory
     transaction.rollback()
     connection.close()
+    from backend.services.pair_leases import pair_leases
+
+    pair_leases.clear()  # leases name rows that the rollback removed
 
 
 @pytest.fixture

@@ -93,6 +93,25 @@ def test_next_pair_finishes_an_image_before_starting_another(member, scene) -> N
     assert second["snapshot"]["id"] == first["snapshot"]["id"] and second["clip"]["id"] != first["clip"]["id"]
 
 
+def test_members_labelling_at_once_are_asked_different_pairs(member, admin, scene) -> None:
+    asked = [person.client.get("/api/v1/labels/next").json() for person in (member, admin)]
+    pairs = [(pair["snapshot"]["id"], pair["clip"]["id"]) for pair in asked]
+    assert pairs[0] != pairs[1]
+    again = member.client.get("/api/v1/labels/next").json()  # a member is not kept from their own pair
+    assert (again["snapshot"]["id"], again["clip"]["id"]) != pairs[1]
+    assert label(admin, *pairs[1], "is").status_code == 201  # no 409: nobody else was answering it
+
+
+def test_when_every_pair_is_being_answered_one_is_asked_anyway(member, admin) -> None:
+    robot = make_robot(admin)
+    only = (upload_snapshot(member, robot).json()["id"], upload_clip(member, make_wav()).json()["id"])
+    for person in (member, admin):
+        pair = person.client.get("/api/v1/labels/next").json()
+        assert (pair["snapshot"]["id"], pair["clip"]["id"]) == only
+    assert label(member, *only, "is").status_code == 201
+    assert label(admin, *only, "is_not").status_code == 409  # the race the leases avoid when they can
+
+
 def test_next_pair_with_no_commands_asks_to_record_one(admin) -> None:
     upload_snapshot(admin, make_robot(admin))
     assert admin.client.get("/api/v1/labels/next").json()["clip"] is None

@@ -24,7 +24,7 @@ def next_pair(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) 
     between two commands."""
     if robot_id is not None:
         robots.get_robot(session, caller.household_id, robot_id)
-    choice = labels.next_pair(session, caller.household_id, robot_id)
+    choice = labels.next_pair(session, caller.user_id, caller.household_id, robot_id)
     if choice is None:
         return _json(
             schemas.NextPair(
