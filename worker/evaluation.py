@@ -105,23 +105,23 @@ def decide(candidate: ModelScore, active: ModelScore | None) -> GateDecision:
     (one held-out triplet, one episode) of noise. A measure nobody could take is recorded, not judged."""
     if active is None:
         return GateDecision(True, ["no active version to compare with: the candidate becomes active"])
-    reasons, worse = [], False
-    for name, cand, act, count in (
+    reasons, worse, measured = [], False, 0
+    for name, cand, act, count, why_not in (
         ("held-out triplet accuracy", candidate.triplet_accuracy, active.triplet_accuracy,
-         candidate.held_out_triplets),
+         candidate.held_out_triplets, None),
         ("simulated success with the household's commands", candidate.sim_success, active.sim_success,
-         candidate.sim_episodes),
+         candidate.sim_episodes, candidate.sim_note or active.sim_note),
     ):  # fmt: skip
         if cand is None or act is None or count == 0:
-            reasons.append(f"{name}: not measured")
+            reasons.append(f"{name}: not measured" + (f" ({why_not})" if why_not else ""))
             continue
+        measured += 1
         tolerance = 1.0 / count
         verdict = "worse" if cand < act - tolerance - 1e-9 else "not worse"
         worse |= verdict == "worse"
         reasons.append(
             f"{name}: candidate {cand:.3f} vs active {act:.3f} ({verdict}, tolerance {tolerance:.3f})"
         )
-    measured = [r for r in reasons if not r.endswith("not measured")]
     if not measured:
         return GateDecision(False, [*reasons, "nothing could be measured: the candidate stays a candidate"])
     return GateDecision(not worse, reasons)

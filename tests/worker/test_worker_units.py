@@ -101,5 +101,9 @@ def test_the_gate_promotes_only_a_candidate_that_is_not_worse_on_either_measure(
     assert not decide(_score(0.60, 0.90), _score(0.80, 0.50)).promote
     unmeasured_sim = decide(_score(0.90, None), _score(0.80, None))
     assert unmeasured_sim.promote and unmeasured_sim.reasons[1].endswith("not measured")
+    no_goals = _score(0.90, None)
+    no_goals.sim_note = "no recorded command is known to mean intent(s) [3]"
+    explained = decide(no_goals, _score(0.80, None))
+    assert explained.reasons[1].endswith("not measured (no recorded command is known to mean intent(s) [3])")
     assert not decide(_score(None, None), _score(None, None)).promote, "nothing measured: nothing promoted"
     assert decide(_score(0.1, 0.0), None).promote, "the first version of a robot becomes active"
