@@ -31,6 +31,14 @@ def run_channel(household_id: int) -> str:
     return f"varbot:runs:{household_id}"
 
 
+def rollout_channel(household_id: int) -> str:
+    """Pub/sub channel of live training rollouts for one household's scene, about 10 messages a second
+    while a run's policy stage runs: `{"type": "rollout", "run_id", "robot_id", "world", "stage", "step",
+    "image_png" (base64 PNG of env 0's camera), "reward", "episode_ended" (since the last message),
+    "goal_clip_id" (or null), "mirror" (env 0's pose, see sim/mirror.py), "sent_at" (Unix time)}`."""
+    return f"varbot:rollouts:{household_id}"
+
+
 @lru_cache
 def celery_client() -> Celery:
     client = Celery("varbot", broker=get_settings().celery_broker_url)

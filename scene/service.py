@@ -5,6 +5,10 @@ model's policy while a command is being tried), the robot model in the 3D view f
 joints, the camera image panel is refreshed, the current frame's embedding moves on the sphere and the reward
 f_I(I_t) · f_S(S_goal) is shown as a number and a small live curve. The household's data (clips, snapshots,
 the active model, running runs) is re-read every few seconds in a background thread.
+
+While a training run publishes its rollouts (`scene.live`) and no command is being tried, the view follows
+the run's environment 0 instead: its camera image, its pose mirrored into the scene's world, its training
+reward; when the messages stop the robot goes back to looking around on its own.
 """
 
 import json
@@ -22,6 +26,7 @@ import viser
 from viser.extras import ViserUrdf
 
 from scene.household import ClipInfo, HouseholdView, clip_audio, load_view, model_bytes, snapshot_images
+from scene.live import FOLLOW_TIMEOUT_S, LiveRollout, RolloutFeed
 from scene.world import DISPLAY_URDFS, SPHERE_PLACE_DEFAULT, SPHERE_PLACES, SimWorld, world_for_robot_kind
 from varbot.paths import data_subdir
 
@@ -64,6 +69,7 @@ class SceneService:
         host: str = "127.0.0.1",
         port: int = 0,
         fps: float = 15.0,
+        follow_timeout_s: float = FOLLOW_TIMEOUT_S,
     ) -> None:
         self.household_id = household_id
         self.robot_id = robot_id
@@ -83,6 +89,8 @@ class SceneService:
         self.rewards: deque[float] = deque(maxlen=REWARD_HISTORY)
         self.tick_times: deque[float] = deque(maxlen=60)
         self.frames = 0
+        self.feed = RolloutFeed(household_id, follow_timeout_s)
+        self.following: LiveRollout | None = None  # the training rollout on show
         self._build_gui()
 
     # --- lifetime -------------------------------------------------------------------------------------------
@@ -109,6 +117,7 @@ class SceneService:
         self._refresh()  # first picture before the loop starts
         refresher = threading.Thread(target=self._refresh_forever, name="scene-refresh", daemon=True)
         refresher.start()
+        self.feed.start()
         period = 1.0 / self.fps
         try:
             while not self.stop_event.is_set():
@@ -117,6 +126,7 @@ class SceneService:
                 self.tick_times.append(time.monotonic())
                 self.stop_event.wait(max(0.0, period - (time.monotonic() - started)))
         finally:
+            self.feed.stop()
             self.withdraw()
             self.server.stop()
             if self.world is not None:
@@ -173,12 +183,8 @@ class SceneService:
         options = tuple(clip.title for clip in view.clips) or (NO_CLIPS,)
         if tuple(self.clip_choice.options) != options:
             self.clip_choice.options = options
-        if view.robot is not None and (
-            self.world is None or self.world.world != world_for_robot_kind(view.robot.kind)
-        ):
-            self.requests.put(("world", world_for_robot_kind(view.robot.kind)))
-        elif view.robot is None and self.world is None:
-            self.requests.put(("world", "kuka"))
+        if self.following is None:  # while following, the run decides the world
+            self._request_robot_world(view)
         model_id = view.model.id if view.model is not None else None
         if model_id != self.brain_model_id:
             self._load_brain(view)
@@ -189,6 +195,14 @@ class SceneService:
             self.sphere = self._sphere_for(view)
             self.requests.put(("sphere", None))
         self._update_status()
+
+    def _request_robot_world(self, view: HouseholdView) -> None:
+        if view.robot is not None and (
+            self.world is None or self.world.world != world_for_robot_kind(view.robot.kind)
+        ):
+            self.requests.put(("world", world_for_robot_kind(view.robot.kind)))
+        elif view.robot is None and self.world is None:
+            self.requests.put(("world", "kuka"))
 
     def _load_brain(self, view: HouseholdView) -> None:
         self.brain_model_id = view.model.id if view.model is not None else None
@@ -273,7 +287,10 @@ class SceneService:
                 "" if self.brain and self.brain.policy else " (no policy)"
             )
         run = ""
-        if view.running_run is not None:
+        if self.following is not None:
+            f = self.following
+            run = f"\n\nFollowing training run {f.run_id} live ({f.stage_name}), step {f.step}"
+        elif view.running_run is not None:
             r = view.running_run
             run = f"\n\nTraining run {r.id}: {r.stage}, {round(r.progress * 100)}%"
         self.status.content = f"{robot} · {model} · {self.measured_fps:.1f} frames/s{run}"
@@ -281,9 +298,21 @@ class SceneService:
     # --- the simulation loop (main thread) ------------------------------------------------------------------
     def _tick(self) -> None:
         self._handle_requests()
-        world = self.world
-        if world is None:
+        if self.world is None:
             return
+        prefer = self.following.run_id if self.following is not None else None
+        live = self.feed.latest(prefer) if self.goal is None else None  # a command tried takes precedence
+        if live is not None:
+            self._follow(live)
+        else:
+            if self.following is not None:
+                self._back_to_own_world()
+            self._simulate(self.world)
+        self.frames += 1
+        if self.frames % int(max(1, self.fps)) == 0:
+            self._update_status()
+
+    def _simulate(self, world: SimWorld) -> None:
         if self.goal is not None and self.brain is not None and self.brain.policy is not None:
             self._command_step(world)
         else:
@@ -291,9 +320,41 @@ class SceneService:
         self._show_robot(world)
         self.camera.image = world.image
         self._show_embedding(world)
-        self.frames += 1
-        if self.frames % int(max(1, self.fps)) == 0:
+
+    # --- following a training run ---------------------------------------------------------------------------
+    def _follow(self, live: LiveRollout) -> None:
+        starting = self.following is None or self.following.run_id != live.run_id
+        if not starting and self.following is not None and live.sequence == self.following.sequence:
+            return  # nothing new since the last frame
+        if starting:
+            self.rewards.clear()
+        if self.world is None or self.world.world != live.world:
+            self._build_world(live.world)
+        world = self.world
+        assert world is not None
+        world.follow(live.mirror)
+        self._show_robot(world)
+        if starting or live.episode_ended:
+            self._move_bodies(world)  # blocks and objects move only when an episode starts
+        self.camera.image = live.image
+        goal = self.sphere.clip_points.get(live.goal_clip_id) if self.sphere is not None else None
+        self._show_markers(self._embed(live.image), goal)
+        self._show_reward(live.reward)
+        self.following = live
+        if starting:
             self._update_status()
+
+    def _back_to_own_world(self) -> None:
+        """After following a run (or before trying a command): the robot's own world, freshly reset."""
+        self.following = None
+        self.rewards.clear()
+        robot = self.view.robot
+        home = world_for_robot_kind(robot.kind) if robot is not None else None
+        if home is not None and self.world is not None and home != self.world.world:
+            self._build_world(home)
+        elif self.world is not None:
+            self.world.reset()
+        self._update_status()
 
     def _handle_requests(self) -> None:
         while True:
@@ -324,8 +385,7 @@ class SceneService:
         if self.brain.policy is None:
             self.command_status.content = "The active model has no policy yet; run a fine-tune first."
             return
-        assert self.world is not None
-        self.world.reset()
+        self._back_to_own_world()
         self.goal = (clip, self.sphere.clip_points[clip.id])
         self.brain.start_episode(_goal(clip.id, self.goal[1]))
         self.command_steps = 0
@@ -469,21 +529,28 @@ class SceneService:
             )
 
     def _show_embedding(self, world: SimWorld) -> None:
-        if self.brain is None:
-            self.current_marker.visible = False
-            self.goal_marker.visible = False
-            return
-        radius = self.sphere_radius
-        current = self.brain.embed_images(world.image[None])[0]
-        self.current_marker.position = tuple(current * radius * 1.02)
-        self.current_marker.visible = True
+        current = self._embed(world.image)
         goal = self.goal[1] if self.goal is not None else self._default_goal()
-        if goal is None:
-            self.goal_marker.visible = False
-            return
-        self.goal_marker.position = tuple(goal * radius * 1.06)
-        self.goal_marker.visible = True
-        value = float(np.dot(current, goal))
+        self._show_markers(current, goal)
+        if current is not None and goal is not None:
+            self._show_reward(float(np.dot(current, goal)))
+
+    def _embed(self, image: np.ndarray) -> np.ndarray | None:
+        """f_I(image) with the active VAR; None without one (or for an image of another size)."""
+        if self.brain is None or image.shape[:2] != (self.brain.image_size, self.brain.image_size):
+            return None
+        return self.brain.embed_images(image[None])[0]
+
+    def _show_markers(self, current: np.ndarray | None, goal: np.ndarray | None) -> None:
+        radius = self.sphere_radius
+        if current is not None:
+            self.current_marker.position = tuple(current * radius * 1.02)
+        self.current_marker.visible = current is not None
+        if goal is not None:
+            self.goal_marker.position = tuple(goal * radius * 1.06)
+        self.goal_marker.visible = goal is not None
+
+    def _show_reward(self, value: float) -> None:
         self.rewards.append(value)
         self.reward_number.value = round(value, 3)
         if self.frames % 3 == 0 and len(self.rewards) >= 2:

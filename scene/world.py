@@ -11,6 +11,7 @@ import pybullet
 import pybullet_data
 
 import sim
+from sim.mirror import BodyMirror
 
 ROBOT_WORLDS = {
     "kuka-sim": "kuka",
@@ -64,17 +65,9 @@ class SimWorld:
         self.env = gymnasium.make(sim.world_id(world), image_size=image_size)
         self.rng = np.random.default_rng(seed)
         self.observation, self.info = self.env.reset(seed=seed)
-        inner = self.env.unwrapped
-        if world == "turtlebot":
-            self.client, self.robot = inner._client, inner._robot_id
-        else:
-            self.client, self.robot = inner.arm.client, inner.arm.body
-        self._revolute = [
-            j
-            for j in range(self.client.getNumJoints(self.robot))
-            if self.client.getJointInfo(self.robot, j)[2]
-            in (pybullet.JOINT_REVOLUTE, pybullet.JOINT_PRISMATIC)
-        ]
+        self.mirror: BodyMirror = self.env.unwrapped.mirror
+        self.client, self.robot = self.mirror.client, self.mirror.robot
+        self._revolute = self.mirror.joint_indices
         self._joint_by_name = {
             self.client.getJointInfo(self.robot, j)[1].decode(): j
             for j in range(self.client.getNumJoints(self.robot))
@@ -142,12 +135,13 @@ class SimWorld:
         return shapes
 
     def link_pose(self, body: int, link: int) -> tuple[np.ndarray, np.ndarray]:
-        if link < 0:
-            position, orientation = self.client.getBasePositionAndOrientation(body)
-        else:
-            state = self.client.getLinkState(body, link)
-            position, orientation = state[4], state[5]
+        position, orientation = self.mirror.link_pose(body, link)
         return np.asarray(position), np.asarray(orientation)
+
+    def follow(self, state: dict[str, Any]) -> None:
+        """Pose the robot and the bodies as another instance of this world is (its `mirror_state()`). The
+        env's own bookkeeping is not touched: `reset()` before stepping it again."""
+        self.mirror.apply(state)
 
     def close(self) -> None:
         self.env.close()

@@ -25,6 +25,7 @@ from sim.arm import STEP_M, WORKSPACE_X_M, WORKSPACE_Y_M
 from sim.bullet_arm import BulletArm, configure_physics
 from sim.camera import Lighting, TableCamera
 from sim.domain import DomainShift
+from sim.mirror import BodyMirror, MirroredWorld
 from sim.textures import texture_file
 
 NUM_INTENTS = 4
@@ -43,7 +44,7 @@ ROW_Y_RANGE_M = (-0.20, -0.10)
 GRIPPER_START_MARGIN_M = 0.05  # the gripper starts anywhere in the workspace shrunk by this margin
 
 
-class BlocksEnv(gym.Env[dict, np.ndarray]):
+class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
     """Gymnasium env of the block task; subclasses choose the arm."""
 
     metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 15}
@@ -78,6 +79,7 @@ class BlocksEnv(gym.Env[dict, np.ndarray]):
         self.blocks = _make_blocks(self.client)
         self.camera = TableCamera(image_size, lighting=_lighting(self.domain))
         self.arm = self.arm_class(self.client, camera=self._render, visual_detail=visual_detail)
+        self.mirror = BodyMirror(self.client, self.arm.body)
         self._apply_appearance()
 
         self.observation_space = gym.spaces.Dict(

@@ -29,6 +29,7 @@ from gymnasium import spaces
 from pybullet_utils.bullet_client import BulletClient
 
 from sim.domain import DomainShift
+from sim.mirror import BodyMirror, MirroredWorld
 from sim.textures import texture_file
 
 ASSETS_DIR = Path(__file__).resolve().parent / "assets"
@@ -143,7 +144,7 @@ def velocity_to_action(speed: float, turn: float) -> np.ndarray:
 STAND_STILL_ACTION = velocity_to_action(0.0, 0.0)  # the zero action drives forward at 0.075 m/s
 
 
-class TurtleBotArenaEnv(gymnasium.Env):
+class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
     """Gymnasium env `varbot/TurtleBotArena-v0` (see the module docstring).
 
     Observation: {"image": uint8 (image_size, image_size, 3), "state": float32 (x, y, sin θ, cos θ)}.
@@ -193,6 +194,7 @@ class TurtleBotArenaEnv(gymnasium.Env):
         self._robot_id = self._load_robot()
         self._floor_id, self._wall_ids = self._build_room()
         self._object_ids = self._create_objects()
+        self.mirror = BodyMirror(self._client, self._robot_id)
         self._objects: list[PlacedObject] = []
         self._projection = self._client.computeProjectionMatrixFOV(
             CAMERA_FOV_DEG, 1.0, CAMERA_NEAR_M, CAMERA_FAR_M

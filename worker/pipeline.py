@@ -9,6 +9,7 @@
   `model_versions.run_id` is unique: one run gives exactly one version.
 """
 
+import contextlib
 import json
 import logging
 import math
@@ -181,6 +182,7 @@ class RunContext:
     world: str
     domain: Any
     robot_id: int
+    household_id: int
     parent_id: int
     parent_var: Path
     parent_policy: Path | None
@@ -232,11 +234,11 @@ def _prepare(
             needs,
         )
         domain = _domain(robot.settings or {})
-        robot_id = robot.id
+        robot_id, household_id = robot.id, robot.household_id
     return RunContext(
         run_id=run_id, kind=kind, params=params, folder=folder, world=world, domain=domain,
-        robot_id=robot_id, parent_id=state.data["parent_id"], parent_var=parent_var,
-        parent_policy=parent_policy, data=data, candidate_id=candidate_id,
+        robot_id=robot_id, household_id=household_id, parent_id=state.data["parent_id"],
+        parent_var=parent_var, parent_policy=parent_policy, data=data, candidate_id=candidate_id,
     )  # fmt: skip
 
 
@@ -321,15 +323,17 @@ def _policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
                 raise Diverged(f"{key} became {value} at PPO update {point['update']}")
         return progress.update(fraction, {"policy": point}, point=point)
 
-    result = improve_policy(
-        context.data,
-        context.parent_policy,
-        _candidate_var(context),
-        context.params["policy_steps"],
-        context.folder / "policy",
-        context.params["seed"],
-        on_update,
-    )
+    with _live_rollouts(context, "policy_improve") as live:
+        result = improve_policy(
+            context.data,
+            context.parent_policy,
+            _candidate_var(context),
+            context.params["policy_steps"],
+            context.folder / "policy",
+            context.params["seed"],
+            on_update,
+            live,
+        )
     compact = context.folder / "policy" / "final.pt"
     _compact_policy(result.checkpoint, compact)
     return {
@@ -339,6 +343,20 @@ def _policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
         "recent_success": result.recent_success,
         "time_shares": result.summary.get("time_shares"),
     }
+
+
+def _live_rollouts(context: RunContext, stage: str) -> Any:
+    """The scene's live view of env 0 (`worker.live`) as a context manager; it gives None (no hook) when
+    VARBOT_LIVE_ROLLOUT_HZ is 0."""
+    from worker.live import ROLLOUT_HZ, RolloutPublisher
+    from worker.policy_stage import goal_clip_ids
+
+    if ROLLOUT_HZ <= 0:
+        return contextlib.nullcontext()
+    return RolloutPublisher(
+        context.household_id, context.run_id, context.robot_id, context.world, stage,
+        goal_clip_ids(context.data),
+    )  # fmt: skip
 
 
 def _evaluate(context: RunContext, progress: Progress) -> dict[str, Any]:

@@ -2,7 +2,8 @@
 the parent policy, the VAR (fine-tuned or the parent's) frozen, goals sampled from the household's own clips.
 
 `learning.rl.run.train_run` does the work (environments in subprocesses, checkpoints that resume exactly);
-this module builds its configuration as `learning.rl.improve` does, plus the cancel/progress hook."""
+this module builds its configuration as `learning.rl.improve` does, plus the cancel/progress hook and the
+live-rollout hook (`worker.live`)."""
 
 import dataclasses
 import math
@@ -25,17 +26,30 @@ class PolicyImproveResult:
     summary: dict[str, Any]
 
 
+def goal_rows(data: HouseholdData, num_intents: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Which of the household's clips are goals, and their intents. With an inferred intent for every intent
+    of the world, each episode's goal names the world's target (so the training success rate means
+    something); otherwise all clips are goals, drawn uniformly (intent -1) — the intrinsic reward never reads
+    the intent either way."""
+    known = set(data.clip_intent[data.clip_intent >= 0].tolist())
+    if known >= set(range(num_intents)):
+        rows = np.flatnonzero(data.clip_intent >= 0)
+        return rows, data.clip_intent[rows]
+    return np.arange(len(data.clip_intent)), np.full(len(data.clip_intent), -1, dtype=np.int64)
+
+
 def goal_bank(data: HouseholdData, num_intents: int = 4):  # type: ignore[no-untyped-def]
-    """The household's clips as goals. With an inferred intent for every intent of the world, each episode's
-    goal names the world's target (so the training success rate means something); otherwise goals are drawn
-    uniformly — the intrinsic reward never reads the intent either way."""
+    """The household's goal clips (`goal_rows`) as the trainer's goal bank."""
     from learning.rl.rewards import ClipBank
 
-    known = set(data.clip_intent[data.clip_intent >= 0].tolist())
-    covered = known >= set(range(num_intents))
-    intents = data.clip_intent if covered else np.full(len(data.clip_intent), -1, dtype=np.int64)
-    rows = np.flatnonzero(data.clip_intent >= 0) if covered else np.arange(len(data.clip_intent))
-    return ClipBank(data.features[rows], intents[rows])
+    rows, intents = goal_rows(data, num_intents)
+    return ClipBank(data.features[rows], intents)
+
+
+def goal_clip_ids(data: HouseholdData, num_intents: int = 4) -> np.ndarray:
+    """Clip id of each entry of `goal_bank(data)`: the scene marks the clip env 0 is working toward."""
+    rows, _intents = goal_rows(data, num_intents)
+    return data.clip_ids[rows]
 
 
 def improve_policy(
@@ -46,7 +60,10 @@ def improve_policy(
     work_dir: Path,
     seed: int,
     on_update: Callable[[float, dict[str, Any]], bool],
+    on_rollout_step: Callable[[Any], None] | None = None,
 ) -> PolicyImproveResult:
+    """PPO from `policy_checkpoint`; `on_update(fraction, point)` after each update (True: stop),
+    `on_rollout_step` after each step of env 0 (`learning.rl.ppo.RolloutStep`: the live view)."""
     from learning.rl.ppo import PPOConfig, read_policy_checkpoint
     from learning.rl.run import train_run
 
@@ -83,6 +100,7 @@ def improve_policy(
         resume=True,
         progress=False,
         on_update=hook,
+        on_rollout_step=on_rollout_step,
     )
     if int(summary["updates"]) < updates_total:
         from worker.progress import Cancelled

@@ -5,6 +5,7 @@ can play a fixed schedule of (intent, seed) episodes — the evaluation protocol
 its share of the 50-episodes-per-intent list.
 """
 
+import json
 import multiprocessing
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -19,12 +20,15 @@ NO_SOUND = -1  # `heard` when nothing (or several things) is in view
 class RLInfo(gym.Wrapper):
     """Normalises `info` to: intent (int), heard (int, -1 = nothing), success (bool), distance (float, m to
     the target, simulator ground truth used only by the shaped-reward baseline), episode (int, index within
-    the schedule; -1 once a schedule is exhausted)."""
+    the schedule; -1 once a schedule is exhausted). With `mirror_in_info` set (the learner sets it on the
+    one environment a watcher follows: `vector_env.set_attr`), also mirror: the world's pose as JSON
+    (`sim.mirror`), so a watcher needs no extra round trip to the worker."""
 
     def __init__(self, env: gym.Env, schedule: Sequence[tuple[int, int]] | None = None) -> None:
         super().__init__(env)
         self.schedule = list(schedule) if schedule is not None else None
         self.episode = -1
+        self.mirror_in_info = False
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
         self.episode += 1
@@ -42,13 +46,16 @@ class RLInfo(gym.Wrapper):
     def _info(self, obs: dict, info: dict) -> dict:
         heard = info.get("heard")
         in_schedule = self.schedule is None or self.episode < len(self.schedule)
-        return {
+        normalised = {
             "intent": int(info["intent"]),
             "heard": NO_SOUND if heard is None else int(heard),
             "success": bool(info.get("success", False)),
             "distance": target_distance(self.env, obs, info),
             "episode": self.episode if in_schedule else -1,
         }
+        if self.mirror_in_info:
+            normalised["mirror"] = json.dumps(self.env.unwrapped.mirror_state())
+        return normalised
 
 
 def target_distance(env: gym.Env, obs: dict, info: dict) -> float:

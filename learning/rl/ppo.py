@@ -176,6 +176,18 @@ class Timings:
 
 
 @dataclass
+class RolloutStep:
+    """Environment 0 right after one vector step, for a watcher (`PPOTrainer.train(on_rollout_step=...)`)."""
+
+    global_step: int  # environment steps of the run so far, this step included
+    image: np.ndarray  # env 0's camera now, uint8 (H, W, 3); after an end, the new episode's first frame
+    reward: float  # env 0's reward for this step, before normalisation (the intrinsic reward for VAR runs)
+    episode_ended: bool  # env 0's episode ended with this step (and env 0 was reset)
+    goal_clip: int  # index into the goal bank of the clip env 0 now works toward
+    mirror: Callable[[], dict[str, Any]]  # env 0's pose now (`sim.mirror`), decoded only when asked for
+
+
+@dataclass
 class EpisodeStats:
     returns: deque = field(default_factory=lambda: deque(maxlen=100))
     lengths: deque = field(default_factory=lambda: deque(maxlen=100))
@@ -239,6 +251,7 @@ class PPOTrainer:
         self.policy: Policy | None = None
         self.init_policy = init_policy
         self.needs_reset = True  # environments are (re-)seeded before the first update and after a resume
+        self.on_rollout_step: Callable[[RolloutStep], None] | None = None  # see `watch`
 
     # -- set-up ----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -381,9 +394,11 @@ class PPOTrainer:
                     tick = time.perf_counter()
                     obs, _, terminated, truncated, info = envs.step_wait()
                     self.timings.env_s += time.perf_counter() - tick
-                    buf.rewards[t, group], buf.dones[t, group] = self._after_step(
+                    buf.rewards[t, group], buf.dones[t, group], raw = self._after_step(
                         group, obs, terminated, truncated, info, finished
                     )
+                    if self.on_rollout_step is not None and group.start == 0:
+                        self._watch(t, obs["image"][0], raw[0], terminated[0] or truncated[0], info)
                     if t + 1 < c.num_steps:
                         self._act(buf, t + 1, group, envs)
             # value of the observation after the last step, for GAE (the hidden state is not advanced)
@@ -398,6 +413,26 @@ class PPOTrainer:
         self._compute_advantages(buf, next_value)
         self.global_step += c.batch_size
         return buf, finished
+
+    def watch(self, on_rollout_step: Callable[[RolloutStep], None] | None) -> None:
+        """Call `on_rollout_step` after every step of env 0 from now on (None: stop watching). Env 0 then puts
+        its pose into its info (`RLInfo.mirror_in_info`): a watcher costs the learner no round trip."""
+        self.on_rollout_step = on_rollout_step
+        first = self.vector_envs[0]
+        first.set_attr("mirror_in_info", [on_rollout_step is not None] + [False] * (first.num_envs - 1))
+
+    def _watch(self, t: int, image: np.ndarray, reward: float, ended: bool, info: dict) -> None:
+        pose = info["mirror"][0]
+        self.on_rollout_step(
+            RolloutStep(
+                global_step=self.global_step + (t + 1) * self.config.num_envs,
+                image=image,
+                reward=float(reward),
+                episode_ended=bool(ended),
+                goal_clip=int(self.goal_clip[0]),
+                mirror=lambda: json.loads(pose),
+            )
+        )
 
     def _act(self, buf: Rollout, t: int, group: slice, envs: Any) -> None:
         """Store the group's observation at step t, sample its actions and send them to its workers."""
@@ -435,9 +470,10 @@ class PPOTrainer:
         truncated: np.ndarray,
         info: dict,
         finished: list,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, torch.Tensor, np.ndarray]:
         """Reward for the group's step just taken, then its next observation (new goals where episodes
-        started). Indices in `done_envs` are within the group; `group.start + i` is the environment."""
+        started). Indices in `done_envs` are within the group; `group.start + i` is the environment.
+        Returns the normalised reward, the episode ends and the raw reward."""
         c = self.config
         done = terminated | truncated
         done_envs = np.flatnonzero(done)
@@ -499,7 +535,7 @@ class PPOTrainer:
             started = done_envs + group.start
             self._new_goals(started, self.intent[started])
         self.timings.policy_s += time.perf_counter() - tick
-        return reward, torch.from_numpy(done.astype(np.float32))
+        return reward, torch.from_numpy(done.astype(np.float32)), raw
 
     def _reward(
         self,
@@ -658,10 +694,14 @@ class PPOTrainer:
 
     # -- the loop --------------------------------------------------------------------------------------------
     def train(
-        self, progress: bool = True, on_update: Callable[[dict[str, Any]], bool | None] | None = None
+        self,
+        progress: bool = True,
+        on_update: Callable[[dict[str, Any]], bool | None] | None = None,
+        on_rollout_step: Callable[[RolloutStep], None] | None = None,
     ) -> dict[str, Any]:
         """Run to `total_steps`. `on_update(metrics)` is called after every update; returning True stops early
-        (cooperative cancel) after the next checkpoint is written."""
+        (cooperative cancel) after the next checkpoint is written. `on_rollout_step(step)` is called after
+        every step of env 0 (a watcher decides itself how often to act on it); None costs nothing."""
         from tqdm.auto import tqdm
 
         from learning.rl.plots import plot_run
@@ -669,6 +709,7 @@ class PPOTrainer:
         c = self.config
         if self.policy is None:
             self.start()
+        self.watch(on_rollout_step)
         metrics_path = self.run_dir / "metrics.jsonl"
         bar = tqdm(
             total=c.num_updates * c.batch_size, initial=self.global_step, unit="step", disable=not progress

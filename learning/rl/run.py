@@ -13,7 +13,7 @@ from typing import Any
 
 import torch
 
-from learning.rl.ppo import PPOConfig, PPOTrainer
+from learning.rl.ppo import PPOConfig, PPOTrainer, RolloutStep
 from learning.rl.rewards import ClipBank, corpus_bank
 
 
@@ -99,12 +99,13 @@ def train_run(
     resume: bool = False,
     progress: bool = True,
     on_update: Callable[[dict[str, Any]], bool | None] | None = None,
+    on_rollout_step: Callable[[RolloutStep], None] | None = None,
 ) -> dict[str, Any]:
     from learning.rl.plots import plot_run
 
     trainer = make_trainer(config, run_dir, var_path, goals, init_policy, resume)
     try:
-        summary = trainer.train(progress=progress, on_update=on_update)
+        summary = trainer.train(progress=progress, on_update=on_update, on_rollout_step=on_rollout_step)
     finally:
         trainer.close()
     plot_run(Path(run_dir))

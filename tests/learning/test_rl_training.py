@@ -4,6 +4,7 @@ the update sees what the rollout saw, and the evaluation protocol plays exactly 
 import json
 import shutil
 import subprocess
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -12,7 +13,7 @@ import torch
 
 from learning.rl.baselines import method_config
 from learning.rl.evaluate import deal, episode_schedule, evaluate
-from learning.rl.ppo import PPOConfig, PPOTrainer, load_policy
+from learning.rl.ppo import PPOConfig, PPOTrainer, Rollout, RolloutStep, load_policy
 from learning.rl.rewards import ClipBank, clip_bank_from_paths
 from learning.var.checkpoint import save_var
 from learning.var.model import VAR, VARConfig
@@ -119,6 +120,50 @@ def test_resuming_from_a_checkpoint_gives_identical_next_updates(
     assert [r["update"] for r in lines] == [1, 2]
     for key in ("policy_loss", "value_loss", "approx_kl", "episode_return"):
         assert lines[1][key] == original[1][key], key
+
+
+Watcher = Callable[[RolloutStep], None]
+
+
+def one_rollout(
+    config: PPOConfig, folder: Path, var: Path, bank: ClipBank, watch: Watcher | None
+) -> tuple[Rollout, dict]:
+    """One rollout, and env 0's pose after it, asked of its worker directly."""
+    trainer = make(config, folder, var, bank)
+    try:
+        trainer._reset_envs()
+        trainer.watch(watch)
+        buf, _finished = trainer.collect_rollout()
+        return buf, trainer.vector_envs[0].call("mirror_state")[0]
+    finally:
+        trainer.close()
+
+
+def test_a_watcher_sees_env_0_after_every_step_and_watching_changes_nothing(
+    tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
+) -> None:
+    config = tiny_config(normalize_reward=False, bootstrap_truncated=False)  # buffer rewards = raw rewards
+    seen: list[tuple[RolloutStep, dict]] = []
+
+    def watch(step: RolloutStep) -> None:
+        seen.append((step, step.mirror()))
+
+    watched, final_pose = one_rollout(config, tmp_path / "watched", var_checkpoint, goal_clips, watch)
+    unwatched, _ = one_rollout(config, tmp_path / "unwatched", var_checkpoint, goal_clips, None)
+    assert len(seen) == config.num_steps
+    for t, (step, pose) in enumerate(seen):
+        assert step.global_step == (t + 1) * config.num_envs
+        assert step.reward == pytest.approx(float(watched.rewards[t, 0]), abs=1e-6)
+        assert step.episode_ended == bool(watched.dones[t, 0])
+        assert 0 <= step.goal_clip < len(goal_clips.features)
+        if t + 1 < config.num_steps:  # the image env 0 acts on next (policy images are full size here)
+            assert np.array_equal(step.image, watched.images[t + 1, 0].numpy())
+        assert {f"J{j}" for j in range(7)} <= set(pose["joints"]) and len(pose["bodies"]) == 5
+    assert [t for t, (step, _) in enumerate(seen) if step.episode_ended] == [4, 9]  # 5-step episodes
+    assert seen[-1][1] == final_pose, "the pose is env 0's, as it is after the step"
+    assert len({json.dumps(pose["joints"]) for _, pose in seen}) > 5, "the arm moves from step to step"
+    assert torch.equal(watched.actions, unwatched.actions)
+    assert torch.equal(watched.rewards, unwatched.rewards)
 
 
 def test_evaluation_plays_the_promised_episodes_per_intent(
