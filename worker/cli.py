@@ -1,4 +1,6 @@
-"""`varbot worker --queue training|robot` and `varbot models build-base`. Heavy imports inside commands."""
+"""`varbot worker --queue training|robot` and `varbot models build-base|adopt|show`.
+
+Heavy imports happen inside the commands."""
 
 import os
 from enum import StrEnum
@@ -73,6 +75,47 @@ def build_base(
         out or data_dir() / "base_models", seed=seed,
     )  # fmt: skip
     typer.echo(json.dumps(record, indent=2))
+
+
+@models_app.command("adopt")
+def adopt(
+    world: Annotated[str, typer.Option(help="kuka, kinova or turtlebot")],
+    var: Annotated[
+        Path, typer.Option(exists=True, dir_okay=False, help="a VAR checkpoint (varbot var train)")
+    ],
+    policy: Annotated[
+        Path, typer.Option(exists=True, dir_okay=False, help="a policy checkpoint (varbot rl train)")
+    ],
+    record: Annotated[
+        Path, typer.Option(exists=True, dir_okay=False, help="JSON: how they were made and what they scored")
+    ],
+    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+) -> None:
+    """Make checkpoints trained elsewhere (e.g. by the benchmarks) a world's base model, with their record."""
+    import json
+
+    from learning.rl.ppo import read_policy_checkpoint
+    from learning.var.checkpoint import read_checkpoint
+    from varbot.paths import data_dir
+    from worker.base_models import write_base
+
+    var_config = read_checkpoint(var)["config"]
+    policy_config = read_policy_checkpoint(policy)["config"]
+    if policy_config.get("world") != world:
+        raise typer.BadParameter(
+            f"the policy was trained in the {policy_config.get('world')} world, not {world}"
+        )
+    if policy_config.get("image_size") != var_config["image_size"]:
+        sizes = f"{policy_config.get('image_size')} px against the VAR's {var_config['image_size']} px"
+        raise typer.BadParameter(f"the policy was trained on images of {sizes}")
+    facts = json.loads(record.read_text())
+    facts.update(
+        world=world,
+        image_size=var_config["image_size"],
+        adopted_from={"var": str(var), "policy": str(policy)},
+    )
+    folder = write_base(world, var, policy, out or data_dir() / "base_models", facts)
+    typer.echo(f"{world}: base model written to {folder}")
 
 
 @models_app.command("show")
