@@ -176,7 +176,9 @@ def test_a_running_scene_follows_a_published_rollout_and_returns_to_exploring_wh
     step = run.show(4000, 0.25)
     eventually(lambda: scene.following is not None, 10, "the scene to follow run 7")
     eventually(lambda: np.array_equal(scene.camera.image, step.image), 5, "the run's camera image")
-    assert "Following training run 7 live (policy stage), step 4000" in scene.status.content
+    # The status line is the last thing the scene's loop writes for a frame; once it shows the run, so do the rest.
+    following = "Following training run 7 live (policy stage), step 4000"
+    eventually(lambda: following in scene.status.content, 5, "the status to name the run")
     assert scene.reward_number.value == pytest.approx(0.25)
     assert_same_pose(scene.world.mirror.state(), run.training.mirror_state())
     expected = scene.brain.embed_images(step.image[None])[0] * scene.sphere_radius * 1.02
@@ -190,7 +192,7 @@ def test_a_running_scene_follows_a_published_rollout_and_returns_to_exploring_wh
 
     run.stop()
     eventually(lambda: scene.following is None, 5, "the scene to stop following")
-    assert "Following" not in scene.status.content
+    eventually(lambda: "Following" not in scene.status.content, 5, "the status to drop the run")
     eventually(lambda: not np.array_equal(scene.camera.image, moved.image), 5, "the scene's own camera")
     assert scene.world.world == "kuka"
 
