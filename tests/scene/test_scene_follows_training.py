@@ -176,7 +176,7 @@ def test_a_running_scene_follows_a_published_rollout_and_returns_to_exploring_wh
     step = run.show(4000, 0.25)
     eventually(lambda: scene.following is not None, 10, "the scene to follow run 7")
     eventually(lambda: np.array_equal(scene.camera.image, step.image), 5, "the run's camera image")
-    # The status line is the last thing the scene's loop writes for a frame; once it shows the run, so do the rest.
+    # The scene's loop writes the status line last: once it names the run, the rest is in place.
     following = "Following training run 7 live (policy stage), step 4000"
     eventually(lambda: following in scene.status.content, 5, "the status to name the run")
     assert scene.reward_number.value == pytest.approx(0.25)
