@@ -22,6 +22,7 @@ import os
 import subprocess
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from rich.console import Console
@@ -91,6 +92,34 @@ def ensure_corpus(sounds: str) -> None:
         varbot("sounds", "build", "--sets", sounds)
 
 
+def ensure_dataset(world: str, sounds: str, args: argparse.Namespace) -> str:
+    """The collected views behind a row's VAR or one-hot encoders: --var-dataset, or collected here once."""
+    from learning.var.dataset import DatasetError, open_dataset
+
+    dataset = args.var_dataset or f"reproduce-{world}-{args.triplets}"
+    try:
+        open_dataset(dataset)
+    except DatasetError:
+        varbot("var", "collect", world, "--triplets", str(args.triplets), "--sounds", sounds,
+               "--name", dataset, "--image-size", str(args.image_size or 96))  # fmt: skip
+    return dataset
+
+
+def ensure_encoders(world: str, sounds: str, policy_image_size: int, args: argparse.Namespace) -> Path:
+    """The sparse baseline's encoders, pre-trained on one-hot labels of the row's views (as the paper)."""
+    from varbot.paths import data_subdir
+
+    dataset = ensure_dataset(world, sounds, args)
+    out = (
+        data_subdir("bench", "reproduce", "encoders")
+        / f"{Path(dataset).name}-{sounds}-{policy_image_size}px.pt"
+    )
+    if not out.exists():
+        varbot("rl", "pretrain", dataset, "--sounds", sounds, "--out", str(out),
+               "--policy-image-size", str(policy_image_size))  # fmt: skip
+    return out
+
+
 def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
     """The VAR for a row: --var if given, else one trained here (on --var-dataset or on new views)."""
     if args.var is not None:
@@ -102,9 +131,7 @@ def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
     run_dir = data_subdir("bench", "reproduce", "var", f"{Path(dataset).name}-{sounds}{schedule}")
     final = run_dir / "final.pt"
     if not final.exists():
-        if args.var_dataset is None:
-            varbot("var", "collect", world, "--triplets", str(args.triplets), "--sounds", sounds,
-                   "--name", dataset, "--image-size", str(args.image_size or 96))  # fmt: skip
+        ensure_dataset(world, sounds, args)
         schedule_args = ["--max-steps", str(args.var_max_steps)] if args.var_max_steps else []
         varbot("var", "train", dataset, "--sounds", sounds, "--run-dir", str(run_dir), "--threads", "1",
                *schedule_args)  # fmt: skip
@@ -147,6 +174,9 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         image_size=image_size or 96,
         seed=args.seed,
     )
+    if method == "sparse":
+        encoders = ensure_encoders(world, sounds, config.policy_image_size, args)
+        config = replace(config, init_encoders=str(encoders))
     run_dir = data_subdir("bench", "reproduce", "rl", args.tag, f"{row}-{method}")
     started = time.monotonic()
 

@@ -4,14 +4,16 @@
 f_S(S_goal).
 - `var-current-sound`: the ablation that adds f_S(S_t)·f_S(S_goal), S_t = what is heard now (silence if
 nothing).
-- `sparse` (NoAux+SparseR): reward 1 when an episode ends in success; the policy learns its own image and
-sound encoders from that reward alone (no VAR, no auxiliary losses).
+- `sparse` (NoAux+SparseR): reward 1 when an episode ends in success; no VAR, no auxiliary losses. As in the
+paper, its image and sound encoders start from one-hot pre-training (`learning.rl.pretrain`, passed as
+`init_encoders`); without it they learn from the sparse reward alone.
 - `rsi` (RSI-style): a hand-shaped reward from simulator ground truth (progress towards the target + 1 on
 success) and auxiliary classification losses on ground-truth labels (what is in view; which intent the goal
 is).
 
 Labels are counted as the paper does (`PPOTrainer.labels_used`): a VAR triplet = 2 labels; each
-extrinsic-reward step = one simulator query; each auxiliary-loss step = 2 ground-truth labels.
+extrinsic-reward step = one simulator query; each auxiliary-loss step = 2 ground-truth labels; each one-hot
+pre-training example = 1 label.
 """
 
 from dataclasses import replace

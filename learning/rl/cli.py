@@ -1,6 +1,7 @@
 """`varbot rl train | improve | eval | plot`. Heavy imports (torch, pybullet) happen inside the commands."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated
 
@@ -37,6 +38,10 @@ def train(
     lr: Annotated[float, typer.Option(help="Adam learning rate (annealed to 0).")] = 3e-4,
     envs: Annotated[int, typer.Option(help="Parallel environments (processes).")] = 8,
     seed: int = 1,
+    init_encoders: Annotated[
+        Path | None,
+        typer.Option(help="Baselines: start from one-hot pre-trained encoders (`varbot rl pretrain`)."),
+    ] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
@@ -66,11 +71,39 @@ def train(
     )
     run_dir = run_dir or data_dir() / "rl" / "runs" / f"{world}-{sounds}-{method}"
     try:
+        if init_encoders is not None:
+            config = replace(config, init_encoders=str(init_encoders))
         summary = train_run(config, run_dir, var if needs_var(method) else None, resume=resume)
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         _fail(str(error))
     typer.echo(json.dumps(summary, indent=2))
     typer.echo(f"run directory: {run_dir}")
+
+
+@app.command()
+def pretrain(
+    dataset: Annotated[str, typer.Argument(help="A collected triplet dataset (`varbot var collect`).")],
+    out: Annotated[Path, typer.Option(help="Where to write the encoders (.pt).")],
+    sounds: Annotated[
+        str, typer.Option(help="Corpus whose training split teaches the goal encoder.")
+    ] = "wordset",
+    policy_image_size: Annotated[int, typer.Option(help="Image size the policy CNN sees.")] = 32,
+    steps: Annotated[int, typer.Option(help="Optimiser steps per encoder.")] = 2000,
+    seed: int = 0,
+) -> None:
+    """One-hot pre-training of the baselines' image and goal encoders (the paper's NoAux+SparseR)."""
+    from learning.rl.pretrain import PretrainConfig, pretrain_encoders
+    from learning.var.dataset import DatasetError
+
+    config = PretrainConfig(dataset, sounds, policy_image_size=policy_image_size, steps=steps, seed=seed)
+    try:
+        result = pretrain_encoders(config, out)
+    except (DatasetError, FileNotFoundError, ValueError) as error:
+        _fail(str(error))
+    typer.echo(json.dumps(result, indent=2))
+    typer.echo(
+        f"encoders written to {out}; train with `varbot rl train --method sparse --init-encoders {out}`"
+    )
 
 
 @app.command()

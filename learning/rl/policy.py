@@ -21,6 +21,7 @@ from torch.nn import functional as F
 
 GoalEncoder = Literal["var", "learned"]
 MFCC_SHAPE = (100, 40)
+GOAL_FEATURES = 64  # what the goal MLP (VAR) or the goal CNN (baselines) hands to the heads
 
 
 @dataclass(frozen=True)
@@ -116,7 +117,7 @@ class Policy(nn.Module):
                 nn.init.orthogonal_(param, 1.0)
             else:
                 nn.init.constant_(param, 0.0)
-        goal_features = 64
+        goal_features = GOAL_FEATURES
         if config.goal_encoder == "var":
             self.goal_encoder: nn.Module = nn.Sequential(
                 layer_init(nn.Linear(config.goal_dim, goal_features)), nn.ReLU()

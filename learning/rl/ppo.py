@@ -36,6 +36,7 @@ from torch.nn import functional as F
 
 from learning.rl.envs import NO_SOUND, make_vector_env, world_id
 from learning.rl.policy import Policy, PolicyConfig, downsample_images
+from learning.rl.pretrain import load_encoders_into
 from learning.rl.rewards import (
     ClipBank,
     CurrentSound,
@@ -62,6 +63,7 @@ class PPOConfig:
         "var"  # "learned": the baselines' own MFCC encoder, no VAR input
     )
     aux_loss_coef: float = 0.0  # RSI-style auxiliary classification losses on ground-truth labels
+    init_encoders: str | None = None  # one-hot pre-trained image + goal encoders (learning.rl.pretrain)
     image_size: int = 96  # rendered size; must equal the VAR's input size
     policy_image_size: int = 32
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
@@ -116,6 +118,10 @@ class PPOConfig:
             raise ValueError("--current-sound adds to the intrinsic reward; it needs reward='var'")
         if self.aux_loss_coef and self.goal_encoder != "learned":
             raise ValueError("auxiliary losses train the baselines' own encoders: use goal_encoder='learned'")
+        if self.init_encoders is not None and self.goal_encoder != "learned":
+            raise ValueError(
+                "pre-trained encoders replace the baselines' own encoders: use goal_encoder='learned'"
+            )
 
     @classmethod
     def from_dict(cls, data: dict) -> "PPOConfig":
@@ -286,6 +292,8 @@ class PPOTrainer:
             aux_heads=c.aux_loss_coef > 0,
         )
         self.policy = Policy(policy_config)
+        if c.init_encoders is not None:
+            self.label_counts.update(load_encoders_into(self.policy, c.init_encoders))
         if self.init_policy is not None:
             payload = read_policy_checkpoint(self.init_policy)
             if PolicyConfig(**payload["policy_config"]) != policy_config:
