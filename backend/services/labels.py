@@ -182,6 +182,7 @@ class PairChoice:
 class _Command:
     clip_id: int
     name: str | None
+    command_clip_ids: tuple[int, ...]  # every live clip of the same command, this one included
 
 
 _LIVE_CLIPS = select(models.Clip.id, models.Clip.name, models.Clip.label_count).where(
@@ -195,22 +196,29 @@ def _clips_in_asking_order(session: Session, household_id: int) -> list[_Command
     per_command: Counter[str] = Counter()
     for clip_id, name, answered in rows:
         per_command[command_key(clip_id, name)] += answered
+    siblings: defaultdict[str, list[int]] = defaultdict(list)
+    for clip_id, name, _ in rows:
+        siblings[command_key(clip_id, name)].append(clip_id)
     random.shuffle(rows)  # ties are broken at random
     rows.sort(key=lambda row: (per_command[command_key(row[0], row[1])], row[2]))
-    return [_Command(clip_id, name) for clip_id, name, _ in rows]
+    return [_Command(clip_id, name, tuple(siblings[command_key(clip_id, name)])) for clip_id, name, _ in rows]
 
 
-def _candidates(robot: bool) -> Select[Any]:
-    """Live images not yet answered for one clip, most-answered first (answering every command about one
-    image completes its triplets). Only (count, id): the database sorts the ties of one count by id."""
+def _candidates(robot: bool, whole_command: bool) -> Select[Any]:
+    """Live images not yet answered for one clip — or, with `whole_command`, for any clip of its command —,
+    most-answered first (answering every command about one image completes its triplets). Only (count, id):
+    the database sorts the ties of one count by id."""
+    answered = (
+        models.Label.clip_id.in_(bindparam("command_clip_ids", expanding=True))
+        if whole_command
+        else models.Label.clip_id == bindparam("clip_id")
+    )
     query = (
         select(models.Snapshot.label_count, models.Snapshot.id)
         .where(
             models.Snapshot.household_id == bindparam("household_id"),
             models.Snapshot.deleted_at.is_(None),
-            ~exists().where(
-                models.Label.snapshot_id == models.Snapshot.id, models.Label.clip_id == bindparam("clip_id")
-            ),
+            ~exists().where(models.Label.snapshot_id == models.Snapshot.id, answered),
         )
         .order_by(models.Snapshot.label_count.desc(), models.Snapshot.id)
         .limit(_TOP_CANDIDATES)
@@ -218,7 +226,14 @@ def _candidates(robot: bool) -> Select[Any]:
     return query.where(models.Snapshot.robot_id == bindparam("robot_id")) if robot else query
 
 
-_CANDIDATES = {robot: _candidates(robot) for robot in (False, True)}
+# One answer per command and image comes first: an image with nothing the household says needs one "is not"
+# per command to become a silence triplet, and more images answered means more of the rare views that show
+# a command's target. Other speakers' clips of the same command are asked about after that.
+_CANDIDATES = {
+    (robot, whole_command): _candidates(robot, whole_command)
+    for robot in (False, True)
+    for whole_command in (True, False)
+}
 _PAIR = (
     select(*_SNAPSHOT_COLUMNS, *(column.label(f"clip_{column.key}") for column in _CLIP_COLUMNS))
     .join(models.Clip, models.Clip.id == bindparam("clip_id"))
@@ -254,20 +269,21 @@ def _balanced_pair(
 ) -> PairChoice | None:
     connection = session.connection()
     fallback: tuple[int, int] | None = None
-    for clip in clips:
-        rows = connection.execute(
-            _CANDIDATES[robot_id is not None],
-            {"household_id": household_id, "clip_id": clip.clip_id, "robot_id": robot_id},
-        ).all()
-        if not rows:
-            continue
-        best = rows[0][0]
-        most_answered = [row[1] for row in rows if row[0] == best]
-        random.shuffle(most_answered)  # the most-answered images first, in random order, then the rest
-        for snapshot_id in [*most_answered, *(row[1] for row in rows if row[0] != best)]:
-            if not pair_leases.held_by_another((household_id, snapshot_id, clip.clip_id), user_id):
-                return PairChoice(*_pair(session, snapshot_id, clip.clip_id), "balanced")
-        fallback = fallback or (most_answered[0], clip.clip_id)
+    for whole_command in (True, False):
+        query = _CANDIDATES[robot_id is not None, whole_command]
+        for clip in clips:
+            parameters = {"household_id": household_id, "clip_id": clip.clip_id, "robot_id": robot_id}
+            rows = connection.execute(query, {**parameters, "command_clip_ids": list(clip.command_clip_ids)})
+            rows = rows.all()
+            if not rows:
+                continue
+            best = rows[0][0]
+            most_answered = [row[1] for row in rows if row[0] == best]
+            random.shuffle(most_answered)  # the most-answered images first, in random order, then the rest
+            for snapshot_id in [*most_answered, *(row[1] for row in rows if row[0] != best)]:
+                if not pair_leases.held_by_another((household_id, snapshot_id, clip.clip_id), user_id):
+                    return PairChoice(*_pair(session, snapshot_id, clip.clip_id), "balanced")
+            fallback = fallback or (most_answered[0], clip.clip_id)
     return None if fallback is None else PairChoice(*_pair(session, *fallback), "balanced")
 
 

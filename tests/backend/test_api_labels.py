@@ -93,6 +93,26 @@ def test_next_pair_finishes_an_image_before_starting_another(member, scene) -> N
     assert second["snapshot"]["id"] == first["snapshot"]["id"] and second["clip"]["id"] != first["clip"]["id"]
 
 
+def test_images_are_asked_about_every_command_before_a_second_clip_of_one(member, admin, scene) -> None:
+    _, snapshots, left, right = scene
+    left_by_alice = upload_clip(admin, make_wav(frequency=330), name="left").json()["id"]
+    command = {left: "left", left_by_alice: "left", right: "right"}
+
+    def answer_next() -> tuple[int, int]:
+        pair = member.client.get("/api/v1/labels/next").json()
+        key = (pair["snapshot"]["id"], pair["clip"]["id"])
+        assert label(member, *key, "is_not").status_code == 201
+        return key
+
+    first_round = [answer_next() for _ in range(len(snapshots) * 2)]
+    assert sorted((s, command[c]) for s, c in first_round) == sorted(
+        (s, name) for s in snapshots for name in ("left", "right")
+    )
+    # then the "left" clip each image was not asked about
+    other_left = {s: ({left, left_by_alice} - {c}).pop() for s, c in first_round if command[c] == "left"}
+    assert {answer_next() for _ in range(len(snapshots))} == set(other_left.items())
+
+
 def test_members_labelling_at_once_are_asked_different_pairs(member, admin, scene) -> None:
     asked = [person.client.get("/api/v1/labels/next").json() for person in (member, admin)]
     pairs = [(pair["snapshot"]["id"], pair["clip"]["id"]) for pair in asked]
