@@ -35,7 +35,8 @@ def rollout_channel(household_id: int) -> str:
     """Pub/sub channel of live training rollouts for one household's scene, about 10 messages a second
     while a run's policy stage runs: `{"type": "rollout", "run_id", "robot_id", "world", "stage", "step",
     "image_png" (base64 PNG of env 0's camera), "reward", "episode_ended" (since the last message),
-    "goal_clip_id" (or null), "mirror" (env 0's pose, see sim/mirror.py), "sent_at" (Unix time)}`."""
+    "goal_clip_id" (or null), "mirror" (env 0's pose, see sim/mirror.py), "sent_at" (Unix time the
+    worker took the step; at most 10 a second)}`."""
     return f"varbot:rollouts:{household_id}"
 
 

@@ -414,10 +414,10 @@ class SceneService:
             world.reset()
 
     def _build_world(self, name: str) -> None:
-        if self.world is not None:
-            self.world.close()
         image_size = self.brain.image_size if self.brain is not None else 96
-        self.world = SimWorld(name, image_size=image_size)
+        previous, self.world = self.world, SimWorld(name, image_size=image_size)
+        if previous is not None:  # closed only once replaced: readers never see a closed world
+            previous.close()
         self.server.scene.reset()
         self.server.scene.add_grid("/ground", width=4, height=4, cell_size=0.25, position=(0, 0, -0.13))
         self.server.scene.add_frame("/robot", show_axes=False)

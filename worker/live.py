@@ -77,7 +77,7 @@ class RolloutPublisher:
         if now < self.next_at:
             return
         try:
-            self.pending.put_nowait((step, self.ended_since_last))
+            self.pending.put_nowait((step, self.ended_since_last, time.time()))
         except queue.Full:
             return  # the previous message is still on its way
         self.next_at = now + self.interval_s
@@ -97,7 +97,10 @@ class RolloutPublisher:
     def __exit__(self, *exc_info: object) -> None:
         self.close()
 
-    def message(self, step: Any, episode_ended: bool = False) -> dict[str, Any]:
+    def message(
+        self, step: Any, episode_ended: bool = False, taken_at: float | None = None
+    ) -> dict[str, Any]:
+        """`taken_at`: when the learner's step was taken for sending (throttled), not when encoding ended."""
         return {
             **self.header,
             "step": int(step.global_step),
@@ -106,7 +109,7 @@ class RolloutPublisher:
             "episode_ended": episode_ended,
             "goal_clip_id": self._clip_id(step.goal_clip),
             "mirror": step.mirror(),
-            "sent_at": time.time(),
+            "sent_at": time.time() if taken_at is None else taken_at,
         }
 
     def _send_forever(self) -> None:
