@@ -92,11 +92,15 @@ def ensure_corpus(sounds: str) -> None:
         varbot("sounds", "build", "--sets", sounds)
 
 
+def row_dataset(world: str, args: argparse.Namespace) -> str:
+    return args.var_dataset or f"reproduce-{world}-{args.triplets}"
+
+
 def ensure_dataset(world: str, sounds: str, args: argparse.Namespace) -> str:
     """The collected views behind a row's VAR or one-hot encoders: --var-dataset, or collected here once."""
     from learning.var.dataset import DatasetError, open_dataset
 
-    dataset = args.var_dataset or f"reproduce-{world}-{args.triplets}"
+    dataset = row_dataset(world, args)
     try:
         open_dataset(dataset)
     except DatasetError:
@@ -126,7 +130,7 @@ def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
         return args.var
     from varbot.paths import data_subdir
 
-    dataset = args.var_dataset or f"reproduce-{world}-{args.triplets}"
+    dataset = row_dataset(world, args)
     schedule = f"-{args.var_max_steps}steps" if args.var_max_steps else ""
     run_dir = data_subdir("bench", "reproduce", "var", f"{Path(dataset).name}-{sounds}{schedule}")
     final = run_dir / "final.pt"

@@ -36,9 +36,8 @@ def parse_args() -> argparse.Namespace:
 def command_centroids(var: torch.nn.Module, sounds: str, split: str) -> np.ndarray:
     from learning.rl.rewards import corpus_bank
 
-    bank = corpus_bank(sounds, split)
-    with torch.inference_mode():
-        embedded = var.encode_sound(torch.from_numpy(bank.features)).numpy()
+    bank = corpus_bank(sounds, split).embed(var)
+    embedded = bank.embeddings.numpy()
     return np.stack([embedded[bank.intents == k].mean(axis=0) for k in range(int(bank.intents.max()) + 1)])
 
 

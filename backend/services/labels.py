@@ -194,10 +194,9 @@ def _clips_in_asking_order(session: Session, household_id: int) -> list[_Command
     """Least-answered command first, and within it the least-answered clip: balanced across commands."""
     rows = session.connection().execute(_LIVE_CLIPS, {"household_id": household_id}).all()
     per_command: Counter[str] = Counter()
+    siblings: defaultdict[str, list[int]] = defaultdict(list)
     for clip_id, name, answered in rows:
         per_command[command_key(clip_id, name)] += answered
-    siblings: defaultdict[str, list[int]] = defaultdict(list)
-    for clip_id, name, _ in rows:
         siblings[command_key(clip_id, name)].append(clip_id)
     random.shuffle(rows)  # ties are broken at random
     rows.sort(key=lambda row: (per_command[command_key(row[0], row[1])], row[2]))
@@ -272,9 +271,13 @@ def _balanced_pair(
     for whole_command in (True, False):
         query = _CANDIDATES[robot_id is not None, whole_command]
         for clip in clips:
-            parameters = {"household_id": household_id, "clip_id": clip.clip_id, "robot_id": robot_id}
-            rows = connection.execute(query, {**parameters, "command_clip_ids": list(clip.command_clip_ids)})
-            rows = rows.all()
+            parameters = {
+                "household_id": household_id,
+                "robot_id": robot_id,
+                "clip_id": clip.clip_id,
+                "command_clip_ids": list(clip.command_clip_ids),
+            }
+            rows = connection.execute(query, parameters).all()
             if not rows:
                 continue
             best = rows[0][0]

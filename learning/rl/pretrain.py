@@ -15,7 +15,7 @@ Both heads are thrown away; the encoder weights are loaded into a `Policy` befor
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -24,6 +24,9 @@ from torch.nn import functional as F
 from tqdm import tqdm
 
 from learning.rl.policy import GOAL_FEATURES, ImageEncoder, Policy, SoundEncoder, downsample_images
+
+if TYPE_CHECKING:
+    from learning.var.dataset import ImageDataset
 
 ENCODERS_KIND = "varbot-onehot-encoders"
 
@@ -42,7 +45,7 @@ class PretrainConfig:
     threads: int = 1
 
 
-def _views_at_policy_size(dataset: Any, size: int, chunk: int = 2048) -> np.ndarray:
+def _views_at_policy_size(dataset: "ImageDataset", size: int, chunk: int = 2048) -> np.ndarray:
     out = np.empty((len(dataset), size, size, 3), dtype=np.uint8)
     for start in range(0, len(dataset), chunk):
         block = torch.from_numpy(np.array(dataset.images[start : start + chunk]))  # a writable copy
@@ -154,10 +157,6 @@ def load_encoders_into(policy: Policy, path: str | Path) -> dict[str, int]:
     payload = read_encoders(path)
     config = policy.config
     made_for = payload["config"]
-    if config.goal_encoder != "learned":
-        raise ValueError(
-            "pre-trained encoders are for the baselines' own goal encoder (goal_encoder='learned')"
-        )
     if (made_for["policy_image_size"], made_for["hidden"]) != (config.policy_image_size, config.hidden):
         raise ValueError(
             f"{path} holds encoders for {made_for['policy_image_size']} px images and {made_for['hidden']} "

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from rl_helpers import tiny_config
 
 from learning.rl.baselines import method_config
 from learning.rl.ppo import PPOConfig, PPOTrainer
@@ -48,18 +49,7 @@ def test_both_encoders_learn_their_one_hot_labels_well_above_chance(views, encod
 
 
 def sparse_config(path: Path, **overrides: object) -> PPOConfig:
-    base = PPOConfig(
-        world="kuka",
-        image_size=VIEW_SIZE,
-        policy_image_size=POLICY_SIZE,
-        max_episode_steps=5,
-        num_envs=2,
-        num_steps=12,
-        num_minibatches=2,
-        update_epochs=1,
-        total_steps=24,
-        seed=3,
-    )
+    base = tiny_config(image_size=VIEW_SIZE, policy_image_size=POLICY_SIZE, update_epochs=1, total_steps=24)
     return method_config("sparse", base=base, init_encoders=str(path), **overrides)
 
 

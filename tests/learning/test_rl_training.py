@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from rl_helpers import IMAGE, tiny_config
 
 from learning.rl.baselines import method_config
 from learning.rl.evaluate import deal, episode_schedule, evaluate
@@ -20,7 +21,6 @@ from learning.var.model import VAR, VARConfig
 
 pytestmark = [pytest.mark.slow, pytest.mark.speech]
 
-IMAGE = 16
 WORDS = ["zero", "one", "two", "three"]
 
 
@@ -41,23 +41,6 @@ def goal_clips(tmp_path_factory: pytest.TempPathFactory) -> ClipBank:
 def var_checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
     torch.manual_seed(0)
     return save_var(VAR(VARConfig(image_size=IMAGE)).eval(), tmp_path_factory.mktemp("var") / "var.pt")
-
-
-def tiny_config(**overrides: object) -> PPOConfig:
-    settings: dict = {
-        "world": "kuka",
-        "image_size": IMAGE,
-        "policy_image_size": IMAGE,
-        "max_episode_steps": 5,
-        "num_envs": 2,
-        "num_steps": 12,
-        "num_minibatches": 2,
-        "update_epochs": 2,
-        "checkpoint_every": 1,
-        "seed": 3,
-    }
-    settings.update(overrides)
-    return PPOConfig(**settings)
 
 
 def make(config: PPOConfig, run_dir: Path, var_path: Path, clips: ClipBank) -> PPOTrainer:
