@@ -186,7 +186,10 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
 
     def on_update(record: dict) -> bool:
         if record["update"] % 10 == 0:
-            results["rows"][key] = {**results["rows"].get(key, {}), "status": "running", "progress": record}
+            previous = results["rows"].get(key, {})
+            if previous.get("tag") != args.tag:  # a new run of the row: show none of the old run's figures
+                previous = {"row": row, "method": method, "tag": args.tag}
+            results["rows"][key] = {**previous, "status": "running", "progress": record}
             save_results(results)
         return args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
 
@@ -234,8 +237,8 @@ def curves(results: dict) -> None:
     from learning.rl.plots import plot_success_curves
 
     by_row: dict[str, dict[str, Path]] = {}
-    for record in results["rows"].values():
-        if "run_dir" in record:
+    for record in [*results.get("earlier_runs", []), *results["rows"].values()]:
+        if "run_dir" in record and Path(record["run_dir"], "metrics.jsonl").exists():
             by_row.setdefault(record["row"], {})[f"{record['method']} ({record['tag']})"] = Path(
                 record["run_dir"]
             )
@@ -277,6 +280,9 @@ def main() -> None:
         if args.resume and done.get("status") == "complete" and done.get("tag") == args.tag:
             print(f"{key}: complete, skipped")
             continue
+        if done.get("tag", args.tag) != args.tag and "success" in done:
+            results.setdefault("earlier_runs", []).append(done)  # kept for comparison, not replaced
+            save_results(results)
         results["rows"][key] = run_row(key, args, results)
         curves(results)
         save_results(results)

@@ -47,12 +47,24 @@ def plot_run(run_dir: Path, out: Path | None = None) -> Path | None:
     ax.set_title("share of update time")
     ax.set_xlabel("env steps")
     ax.legend(fontsize=8, loc="lower left")
+    _plot_success_by_intent(axes.flat[0], steps, records)
     axes.flat[0].set_ylim(-0.02, 1.02)
     fig.suptitle(str(run_dir))
     fig.tight_layout()
     fig.savefig(out, dpi=90)
     plt.close(fig)
     return out
+
+
+def _plot_success_by_intent(ax: plt.Axes, steps: np.ndarray, records: list[dict]) -> None:
+    """Thin lines, one per intent, where the run logged them (runs before that logged only the mean)."""
+    by_intent = [r.get("recent_success_by_intent") for r in records]
+    width = max((len(rates) for rates in by_intent if rates), default=0)
+    for intent in range(width):
+        rates = [rates[intent] if rates else np.nan for rates in by_intent]
+        ax.plot(steps, rates, linewidth=0.8, alpha=0.7, label=f"intent {intent}")
+    if width:
+        ax.legend(fontsize=7, ncol=2)
 
 
 def plot_success_curves(runs: dict[str, Path], out: Path, title: str = "success rate vs env steps") -> Path:

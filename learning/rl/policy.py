@@ -1,11 +1,17 @@
 """The recurrent actor-critic of the paper (Fig. 3), sized for a 2-core CPU.
 
     I_t ──► policy CNN ──► 128 ─┐
-                                 (+) ──► GRU ──► h_t ─┐
-    [f_I(I_t), M_t] ──► MLP ─► 128 ┘                   ├──► actor (Gaussian mean) / critic (value)
-    goal ──► goal MLP (once per episode) ──────────────┘
+                                 (+) ──► x_t ──► GRU ──► h_t ──┐
+    [f_I(I_t), M_t] ──► MLP ─► 128 ┘      │                     ├──► actor (Gaussian mean) / critic (value)
+                                          └──► fusion ─► g_t ───┘
+    goal ──► goal MLP (once per episode) ────────┘
 
-The goal joins after the recurrent core because it is a one-time signal. With the VAR the goal is the frozen
+The goal joins after the recurrent core because it is a one-time signal. With `goal_fusion="image"` (the
+default for new runs, as the reference network does) it is first fused with this step's image features x_t
+by a two-layer MLP, so "where is the block that the goal names, relative to the gripper" is computed from the
+goal and the current view together; with "core" (the first runs' policies, still loadable) it is only
+concatenated with h_t, and a single head layer has to make every goal-and-position interaction on its own (the
+first 500k-step Kuka run with it never learned the goal "zero"). With the VAR the goal is the frozen
 f_S(S_goal) and f_I(I_t) is part of the observation. The baselines (no VAR) use `goal_encoder="learned"`: a
 small MFCC CNN trained by RL (and, RSI-style, by auxiliary classification losses on ground-truth labels).
 """
@@ -22,6 +28,7 @@ from torch.nn import functional as F
 GoalEncoder = Literal["var", "learned"]
 MFCC_SHAPE = (100, 40)
 GOAL_FEATURES = 64  # what the goal MLP (VAR) or the goal CNN (baselines) hands to the heads
+GoalFusion = Literal["core", "image"]
 
 
 @dataclass(frozen=True)
@@ -36,6 +43,7 @@ class PolicyConfig:
     action_dim: int = 2
     num_intents: int = 4  # only used by the auxiliary heads (RSI baseline)
     aux_heads: bool = False
+    goal_fusion: GoalFusion = "core"  # "core" for checkpoints saved before the field existed
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -124,7 +132,13 @@ class Policy(nn.Module):
             )
         else:
             self.goal_encoder = SoundEncoder(goal_features)
-        joined = h + goal_features
+        if config.goal_fusion == "image":
+            self.goal_image_fusion = nn.Sequential(
+                layer_init(nn.Linear(h + goal_features, h)), nn.ReLU(), layer_init(nn.Linear(h, h)), nn.ReLU()
+            )
+            joined = 2 * h
+        else:
+            joined = h + goal_features
         self.actor_mean = nn.Sequential(
             layer_init(nn.Linear(joined, h)), nn.Tanh(), layer_init(nn.Linear(h, config.action_dim), std=0.01)
         )
@@ -152,8 +166,14 @@ class Policy(nn.Module):
         vector = torch.cat([var_embedding, state], dim=-1) if self.config.var_dim else state
         return F.relu(self.image_encoder(images) + self.vector_encoder(vector))
 
-    def heads(self, core: torch.Tensor, goal_features: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        joined = torch.cat([core, goal_features], dim=-1)
+    def heads(
+        self, core: torch.Tensor, inputs: torch.Tensor, goal_features: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """core: the GRU output; inputs: this step's features before the GRU (x_t)."""
+        goal = goal_features
+        if self.config.goal_fusion == "image":
+            goal = self.goal_image_fusion(torch.cat([inputs, goal_features], dim=-1))
+        joined = torch.cat([core, goal], dim=-1)
         return self.actor_mean(joined), self.critic(joined).squeeze(-1)
 
     # -- one environment step (rollout) ----------------------------------------------------------------------
@@ -168,9 +188,10 @@ class Policy(nn.Module):
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Returns (action mean, value, new hidden). `episode_start` (B,) zeroes the hidden state first."""
         hidden = hidden * (1.0 - episode_start).unsqueeze(-1)
-        core, _ = self.gru(self.encode_inputs(images, var_embedding, state).unsqueeze(0), hidden.unsqueeze(0))
+        inputs = self.encode_inputs(images, var_embedding, state)
+        core, _ = self.gru(inputs.unsqueeze(0), hidden.unsqueeze(0))
         hidden = core[0]
-        mean, value = self.heads(hidden, goal_features)
+        mean, value = self.heads(hidden, inputs, goal_features)
         return mean, value, hidden
 
     def distribution(self, mean: torch.Tensor) -> Normal:
@@ -203,5 +224,5 @@ class Policy(nn.Module):
             out, hidden = self.gru(inputs[begin:end], hidden * keep[begin])
             cores.append(out)
         core = torch.cat(cores)
-        mean, value = self.heads(flat(core), flat(goal_features))
+        mean, value = self.heads(flat(core), flat(inputs), flat(goal_features))
         return mean.view(steps, batch, -1), value.view(steps, batch), inputs

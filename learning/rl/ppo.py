@@ -35,7 +35,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from learning.rl.envs import NO_SOUND, make_vector_env, world_id
-from learning.rl.policy import Policy, PolicyConfig, downsample_images
+from learning.rl.policy import GoalFusion, Policy, PolicyConfig, downsample_images
 from learning.rl.pretrain import load_encoders_into
 from learning.rl.rewards import (
     ClipBank,
@@ -47,6 +47,8 @@ from learning.rl.rewards import (
 )
 
 CHECKPOINT_KIND = "varbot-policy"
+
+LEGACY_DEFAULTS = {"goal_fusion": "core"}  # what runs saved before a field existed were trained with
 
 
 @dataclass
@@ -64,6 +66,7 @@ class PPOConfig:
     )
     aux_loss_coef: float = 0.0  # RSI-style auxiliary classification losses on ground-truth labels
     init_encoders: str | None = None  # one-hot pre-trained image + goal encoders (learning.rl.pretrain)
+    goal_fusion: GoalFusion = "image"  # how the goal meets the observation (learning.rl.policy)
     image_size: int = 96  # rendered size; must equal the VAR's input size
     policy_image_size: int = 32
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
@@ -125,8 +128,9 @@ class PPOConfig:
 
     @classmethod
     def from_dict(cls, data: dict) -> "PPOConfig":
+        """Settings saved by older versions lack newer fields: those get the value the old code used."""
         names = {f.name for f in fields(cls)}
-        return cls(**{k: v for k, v in data.items() if k in names})
+        return cls(**{**LEGACY_DEFAULTS, **{k: v for k, v in data.items() if k in names}})
 
 
 class RunningMeanStd:
@@ -198,6 +202,16 @@ class EpisodeStats:
     returns: deque = field(default_factory=lambda: deque(maxlen=100))
     lengths: deque = field(default_factory=lambda: deque(maxlen=100))
     successes: deque = field(default_factory=lambda: deque(maxlen=100))
+    intents: deque = field(default_factory=lambda: deque(maxlen=100))  # -1: unknown (older checkpoints)
+
+    def success_by_intent(self, num_intents: int) -> list[float]:
+        """Recent success rate of each intent's episodes (NaN for an intent with none in the window)."""
+        pairs = [(i, s) for i, s in zip(self.intents, self.successes, strict=True) if not math.isnan(s)]
+        rates = []
+        for intent in range(num_intents):
+            mine = [s for i, s in pairs if i == intent]
+            rates.append(float(np.mean(mine)) if mine else float("nan"))
+        return rates
 
 
 class PPOTrainer:
@@ -229,17 +243,10 @@ class PPOTrainer:
         self.var_path = var_path
         self.label_counts = dict(label_counts or {})
         self.goals = goals
-        if self.var is not None and goals.embeddings is None:
-            goals.embed(self.var)
-        self.current = None
-        if config.current_sound:
-            if current_sounds is None:
-                raise ValueError("--current-sound needs the training clips of the corpus")
-            if current_sounds.embeddings is None:
-                current_sounds.embed(self.var)
-            with torch.inference_mode():
-                silence = self.var.encode_sound(torch.zeros(1, 100, 40))
-            self.current = CurrentSound(current_sounds, silence)
+        if config.current_sound and current_sounds is None:
+            raise ValueError("--current-sound needs the training clips of the corpus")
+        self.current_sounds = current_sounds if config.current_sound else None
+        self.current: CurrentSound | None = None
         self.goal_features_table = torch.from_numpy(goals.features)
         self.vector_envs: list = []
         self.update_index = 0  # updates completed
@@ -247,11 +254,7 @@ class PPOTrainer:
         self.rng = np.random.default_rng(config.seed)
         self.torch_rng = torch.Generator().manual_seed(config.seed)
         self.return_rms = RunningMeanStd()
-        self.stats = EpisodeStats(
-            deque(maxlen=config.success_window),
-            deque(maxlen=config.success_window),
-            deque(maxlen=config.success_window),
-        )
+        self.stats = EpisodeStats(*(deque(maxlen=config.success_window) for _ in range(4)))
         self.timings = Timings()
         self.peak_memory_bytes = 0
         self.policy: Policy | None = None
@@ -277,6 +280,7 @@ class PPOTrainer:
             for _ in self.groups
         ]
         torch.set_num_threads(c.torch_threads)
+        self._embed_sounds()
         first = self.vector_envs[0]
         self.state_dim = int(first.single_observation_space["state"].shape[0])
         self.num_intents = int(first.get_attr("num_intents")[0])
@@ -290,6 +294,7 @@ class PPOTrainer:
             policy_image_size=c.policy_image_size,
             num_intents=self.num_intents,
             aux_heads=c.aux_loss_coef > 0,
+            goal_fusion=c.goal_fusion,
         )
         self.policy = Policy(policy_config)
         if c.init_encoders is not None:
@@ -304,6 +309,21 @@ class PPOTrainer:
             self.policy.load_state_dict(payload["policy"])
         self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=c.learning_rate, eps=1e-5)
         self.hidden = self.policy.initial_state(c.num_envs)
+
+    def _embed_sounds(self) -> None:
+        """f_S of every goal (and current-sound) clip, once. Done after the thread count is set: the same
+        clips embedded with another number of threads differ in the last bits, and a resumed run would then
+        not repeat the original one exactly."""
+        if self.var is None:
+            return
+        if self.goals.embeddings is None:
+            self.goals.embed(self.var)
+        if self.current_sounds is not None:
+            if self.current_sounds.embeddings is None:
+                self.current_sounds.embed(self.var)
+            with torch.inference_mode():
+                silence = self.var.encode_sound(torch.zeros(1, 100, 40))
+            self.current = CurrentSound(self.current_sounds, silence)
 
     def close(self) -> None:
         for envs in self.vector_envs:
@@ -590,6 +610,7 @@ class PPOTrainer:
             self.stats.returns.append(episode["return"])
             self.stats.lengths.append(episode["length"])
             self.stats.successes.append(ok)
+            self.stats.intents.append(int(self.intent[e]))
         self.episode_return[group][done] = 0.0
         self.episode_length[group][done] = 0
 
@@ -762,6 +783,7 @@ class PPOTrainer:
             "episode_length": float(np.mean([e["length"] for e in finished])) if finished else float("nan"),
             "success": float(np.nanmean([e["success"] for e in finished])) if finished else float("nan"),
             "recent_success": float(np.mean(recent)) if recent else float("nan"),
+            "recent_success_by_intent": self.stats.success_by_intent(self.num_intents),
             "time": {k: round(v - getattr(before, k), 4) for k, v in asdict(self.timings).items()},
             "peak_memory_mb": self.peak_memory_bytes / 2**20,
             **stats,
@@ -820,7 +842,7 @@ class PPOTrainer:
             "return_rms": self.return_rms.state(),
             "numpy_rng": self.rng.bit_generator.state,
             "torch_rng": self.torch_rng.get_state(),
-            "stats": {k: list(getattr(self.stats, k)) for k in ("returns", "lengths", "successes")},
+            "stats": {k: list(v) for k, v in vars(self.stats).items()},
             "timings": asdict(self.timings),
             "peak_memory_bytes": self.peak_memory_bytes,
             "var_path": self.var_path,
@@ -843,7 +865,8 @@ class PPOTrainer:
         self.return_rms.mean, self.return_rms.var, self.return_rms.count = payload["return_rms"]
         self.rng.bit_generator.state = payload["numpy_rng"]
         self.torch_rng.set_state(payload["torch_rng"])
-        for key, values in payload["stats"].items():
+        stats = {"intents": [-1] * len(payload["stats"]["successes"]), **payload["stats"]}
+        for key, values in stats.items():
             getattr(self.stats, key).extend(values)
         self.timings = Timings(**payload["timings"])
         self.peak_memory_bytes = payload["peak_memory_bytes"]

@@ -57,6 +57,7 @@ def make_trainer(
     checkpoint = run_dir / "checkpoint.pt"
     if resume and checkpoint.exists():
         saved = json.loads((run_dir / "config.json").read_text())
+        saved = asdict(PPOConfig.from_dict(saved))
         mine = {k: v for k, v in asdict(config).items() if k != "total_steps"}
         differs = {k: (saved.get(k), v) for k, v in mine.items() if saved.get(k) != v}
         if differs:

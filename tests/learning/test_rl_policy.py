@@ -1,8 +1,11 @@
-"""The recurrent policy: its state is cleared where an episode starts; the update sees what rollouts saw."""
+"""The recurrent policy: its state is cleared where an episode starts; the update sees what rollouts saw; the
+goal meets the current view (new policies) or only the recurrent core (policies saved before that)."""
 
+import pytest
 import torch
 
 from learning.rl.policy import Policy, PolicyConfig, downsample_images
+from learning.rl.ppo import PPOConfig
 
 T, B = 12, 3
 
@@ -17,13 +20,19 @@ def make_inputs(seed: int = 0) -> dict[str, torch.Tensor]:
     }
 
 
-def policy() -> Policy:
+@pytest.fixture(params=["image", "core"])
+def goal_fusion(request: pytest.FixtureRequest) -> str:
+    return request.param
+
+
+def make_policy(goal_fusion: str = "image") -> Policy:
     torch.manual_seed(0)
-    return Policy(PolicyConfig(image_size=16, state_dim=2, policy_image_size=16)).eval()
+    config = PolicyConfig(image_size=16, state_dim=2, policy_image_size=16, goal_fusion=goal_fusion)
+    return Policy(config).eval()
 
 
-def test_an_episode_start_clears_the_recurrent_state() -> None:
-    net, x = policy(), make_inputs()
+def test_an_episode_start_clears_the_recurrent_state(goal_fusion: str) -> None:
+    net, x = make_policy(goal_fusion), make_inputs()
     goal = net.encode_goal(x["goal"])
     busy = torch.randn(B, net.config.hidden)
     with torch.no_grad():
@@ -41,8 +50,8 @@ def test_an_episode_start_clears_the_recurrent_state() -> None:
     assert not torch.allclose(mean_busy, mean_fresh)  # the state does matter when it is kept
 
 
-def test_sequence_evaluation_matches_step_by_step_rollout_with_resets_mid_sequence() -> None:
-    net, x = policy(), make_inputs(1)
+def test_sequence_evaluation_matches_step_by_step_rollout_with_resets_mid_sequence(goal_fusion: str) -> None:
+    net, x = make_policy(goal_fusion), make_inputs(1)
     starts = torch.zeros(T, B)
     starts[0] = 1
     starts[5, 0] = 1  # env 0 starts a new episode at t = 5, env 2 at t = 9
@@ -65,8 +74,8 @@ def test_sequence_evaluation_matches_step_by_step_rollout_with_resets_mid_sequen
     assert torch.allclose(seq_value, torch.stack(values), atol=1e-5)
 
 
-def test_what_happened_before_an_episode_start_does_not_leak_into_the_new_episode() -> None:
-    net, x = policy(), make_inputs(2)
+def test_what_happened_before_an_episode_start_does_not_leak_into_the_new_episode(goal_fusion: str) -> None:
+    net, x = make_policy(goal_fusion), make_inputs(2)
     starts = torch.zeros(T, B)
     starts[6] = 1
     goal = net.encode_goal(x["goal"]).expand(T, B, -1)
@@ -95,3 +104,26 @@ def test_downsampling_keeps_uint8_channels_last_images() -> None:
     small = downsample_images(images, 16)
     assert small.shape == (2, 16, 16, 3) and small.dtype == torch.uint8
     assert (small == 200).all()
+
+
+def test_new_policies_fuse_the_goal_with_the_current_view() -> None:
+    net, x = make_policy("image"), make_inputs(4)
+    goal = net.encode_goal(x["goal"][:1]).expand(B, -1)  # one goal for all three views
+    core = torch.zeros(B, net.config.hidden)  # same recurrent state: only the current view differs
+    with torch.no_grad():
+        inputs = net.encode_inputs(x["images"][0], x["var_embedding"][0], x["state"][0])
+        mean, _ = net.heads(core, inputs, goal)
+        late = make_policy("core")
+        late_mean, _ = late.heads(core, inputs, late.encode_goal(x["goal"][:1]).expand(B, -1))
+    assert not torch.allclose(mean[0], mean[1])  # the goal's contribution depends on what is in view
+    assert torch.allclose(late_mean[0], late_mean[1])  # "core": only h_t carries the view
+
+
+def test_a_policy_saved_before_goal_fusion_existed_loads_as_it_was_trained() -> None:
+    old = make_policy("core")
+    saved_config = {k: v for k, v in old.config.to_dict().items() if k != "goal_fusion"}
+    loaded = Policy(PolicyConfig(**saved_config))
+    loaded.load_state_dict(old.state_dict())  # strict: the same layers, no fusion MLP
+    assert loaded.config.goal_fusion == "core"
+    assert PPOConfig.from_dict({"world": "kuka"}).goal_fusion == "core"  # its run settings, likewise
+    assert PPOConfig().goal_fusion == "image"  # new runs fuse

@@ -14,7 +14,7 @@ from rl_helpers import IMAGE, tiny_config
 
 from learning.rl.baselines import method_config
 from learning.rl.evaluate import deal, episode_schedule, evaluate
-from learning.rl.ppo import PPOConfig, PPOTrainer, Rollout, RolloutStep, load_policy
+from learning.rl.ppo import EpisodeStats, PPOConfig, PPOTrainer, Rollout, RolloutStep, load_policy
 from learning.rl.rewards import ClipBank, clip_bank_from_paths
 from learning.var.checkpoint import save_var
 from learning.var.model import VAR, VARConfig
@@ -103,6 +103,9 @@ def test_resuming_from_a_checkpoint_gives_identical_next_updates(
     assert [r["update"] for r in lines] == [1, 2]
     for key in ("policy_loss", "value_loss", "approx_kl", "episode_return"):
         assert lines[1][key] == original[1][key], key
+    # the per-intent success window is restored too (NaN where an intent had no episode yet)
+    assert len(lines[1]["recent_success_by_intent"]) == 4
+    np.testing.assert_equal(lines[1]["recent_success_by_intent"], original[1]["recent_success_by_intent"])
 
 
 Watcher = Callable[[RolloutStep], None]
@@ -276,3 +279,12 @@ def test_rsi_baseline_trains_on_the_turtlebot_with_auxiliary_losses_and_counts_i
     assert trainer.state_dim == 4  # odometry x, y, sin θ, cos θ
     assert record["aux_loss"] > 0 and np.isfinite(record["value_loss"])
     assert summary["labels"] == {"reward_queries": 24, "aux_labels": 48, "total": 72}
+
+
+def test_recent_success_is_also_reported_per_intent() -> None:
+    stats = EpisodeStats()
+    for intent, success in [(0, 0.0), (1, 1.0), (1, 0.0), (3, 1.0), (-1, 1.0), (2, float("nan"))]:
+        stats.intents.append(intent)
+        stats.successes.append(success)
+    # intent 2's only episode had no known goal (NaN); -1 marks episodes from before intents were logged
+    np.testing.assert_equal(stats.success_by_intent(4), [0.0, 0.5, float("nan"), 1.0])
