@@ -8,6 +8,9 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.ticker import FuncFormatter
+
+THOUSANDS = FuncFormatter(lambda value, _: f"{value / 1000:.0f}k")  # env steps: 800k, not 800000
 
 
 def read_metrics(run_dir: Path) -> list[dict]:
@@ -37,6 +40,7 @@ def plot_run(run_dir: Path, out: Path | None = None) -> Path | None:
             ax.plot(steps, [r.get(key, np.nan) for r in records], label=key)
         ax.set_title(title)
         ax.set_xlabel("env steps")
+        ax.xaxis.set_major_formatter(THOUSANDS)
         if len(keys) > 1:
             ax.legend(fontsize=8)
     ax = axes.flat[5]
@@ -46,6 +50,7 @@ def plot_run(run_dir: Path, out: Path | None = None) -> Path | None:
     ax.stackplot(steps, shares.T, labels=[p.removesuffix("_s") for p in parts])
     ax.set_title("share of update time")
     ax.set_xlabel("env steps")
+    ax.xaxis.set_major_formatter(THOUSANDS)
     ax.legend(fontsize=8, loc="lower left")
     _plot_success_by_intent(axes.flat[0], steps, records)
     axes.flat[0].set_ylim(-0.02, 1.02)
@@ -77,6 +82,7 @@ def plot_success_curves(runs: dict[str, Path], out: Path, title: str = "success 
             continue
         ax.plot([r["global_step"] for r in records], [r["recent_success"] for r in records], label=label)
     ax.set_xlabel("env steps")
+    ax.xaxis.set_major_formatter(THOUSANDS)
     ax.set_ylabel("success rate (last 100 training episodes)")
     ax.set_ylim(-0.02, 1.02)
     ax.set_title(title)

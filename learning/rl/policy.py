@@ -44,6 +44,7 @@ class PolicyConfig:
     num_intents: int = 4  # only used by the auxiliary heads (RSI baseline)
     aux_heads: bool = False
     goal_fusion: GoalFusion = "core"  # "core" for checkpoints saved before the field existed
+    bounded_mean: bool = False  # tanh on the action mean (False: checkpoints from before the field existed)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -174,7 +175,13 @@ class Policy(nn.Module):
         if self.config.goal_fusion == "image":
             goal = self.goal_image_fusion(torch.cat([inputs, goal_features], dim=-1))
         joined = torch.cat([core, goal], dim=-1)
-        return self.actor_mean(joined), self.critic(joined).squeeze(-1)
+        mean = self.actor_mean(joined)
+        if self.config.bounded_mean:
+            # Actions are clipped to [-1, 1]. An unbounded mean drifts far outside (±6.5 measured in the first
+            # Kuka runs): every sample then clips to the same action, the noise explores nothing, and a goal
+            # whose first habit was wrong ("zero" → move right) never gets out of it.
+            mean = torch.tanh(mean)
+        return mean, self.critic(joined).squeeze(-1)
 
     # -- one environment step (rollout) ----------------------------------------------------------------------
     def step(

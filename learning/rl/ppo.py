@@ -48,7 +48,8 @@ from learning.rl.rewards import (
 
 CHECKPOINT_KIND = "varbot-policy"
 
-LEGACY_DEFAULTS = {"goal_fusion": "core"}  # what runs saved before a field existed were trained with
+# what runs saved before a field existed were trained with
+LEGACY_DEFAULTS = {"goal_fusion": "core", "bounded_mean": False}
 
 
 @dataclass
@@ -67,6 +68,7 @@ class PPOConfig:
     aux_loss_coef: float = 0.0  # RSI-style auxiliary classification losses on ground-truth labels
     init_encoders: str | None = None  # one-hot pre-trained image + goal encoders (learning.rl.pretrain)
     goal_fusion: GoalFusion = "image"  # how the goal meets the observation (learning.rl.policy)
+    bounded_mean: bool = True  # keep the Gaussian's mean inside the action range (learning.rl.policy)
     image_size: int = 96  # rendered size; must equal the VAR's input size
     policy_image_size: int = 32
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
@@ -131,6 +133,12 @@ class PPOConfig:
         """Settings saved by older versions lack newer fields: those get the value the old code used."""
         names = {f.name for f in fields(cls)}
         return cls(**{**LEGACY_DEFAULTS, **{k: v for k, v in data.items() if k in names}})
+
+
+def _mean_or_nan(values: list[float]) -> float:
+    """Mean of the known values; NaN when there are none (goals without intents have no success rate)."""
+    known = [v for v in values if not math.isnan(v)]
+    return float(np.mean(known)) if known else float("nan")
 
 
 class RunningMeanStd:
@@ -206,12 +214,8 @@ class EpisodeStats:
 
     def success_by_intent(self, num_intents: int) -> list[float]:
         """Recent success rate of each intent's episodes (NaN for an intent with none in the window)."""
-        pairs = [(i, s) for i, s in zip(self.intents, self.successes, strict=True) if not math.isnan(s)]
-        rates = []
-        for intent in range(num_intents):
-            mine = [s for i, s in pairs if i == intent]
-            rates.append(float(np.mean(mine)) if mine else float("nan"))
-        return rates
+        pairs = list(zip(self.intents, self.successes, strict=True))
+        return [_mean_or_nan([s for i, s in pairs if i == intent]) for intent in range(num_intents)]
 
 
 class PPOTrainer:
@@ -295,6 +299,7 @@ class PPOTrainer:
             num_intents=self.num_intents,
             aux_heads=c.aux_loss_coef > 0,
             goal_fusion=c.goal_fusion,
+            bounded_mean=c.bounded_mean,
         )
         self.policy = Policy(policy_config)
         if c.init_encoders is not None:
@@ -773,7 +778,6 @@ class PPOTrainer:
         self._sample_memory()
         elapsed = time.perf_counter() - started
         self.timings.other_s += elapsed - sum(asdict(self.timings).values()) + sum(asdict(before).values())
-        recent = [s for s in self.stats.successes if not math.isnan(s)]
         return {
             "update": self.update_index,
             "global_step": self.global_step,
@@ -781,8 +785,8 @@ class PPOTrainer:
             "episodes": len(finished),
             "episode_return": float(np.mean([e["return"] for e in finished])) if finished else float("nan"),
             "episode_length": float(np.mean([e["length"] for e in finished])) if finished else float("nan"),
-            "success": float(np.nanmean([e["success"] for e in finished])) if finished else float("nan"),
-            "recent_success": float(np.mean(recent)) if recent else float("nan"),
+            "success": _mean_or_nan([e["success"] for e in finished]),
+            "recent_success": _mean_or_nan(list(self.stats.successes)),
             "recent_success_by_intent": self.stats.success_by_intent(self.num_intents),
             "time": {k: round(v - getattr(before, k), 4) for k, v in asdict(self.timings).items()},
             "peak_memory_mb": self.peak_memory_bytes / 2**20,
@@ -802,11 +806,10 @@ class PPOTrainer:
         self.peak_memory_bytes = max(self.peak_memory_bytes, total)
 
     def summary(self) -> dict[str, Any]:
-        recent = [s for s in self.stats.successes if not math.isnan(s)]
         return {
             "updates": self.update_index,
             "env_steps": self.global_step,
-            "recent_success": float(np.mean(recent)) if recent else float("nan"),
+            "recent_success": _mean_or_nan(list(self.stats.successes)),
             "time_shares": self.timings.shares(),
             "time_s": asdict(self.timings),
             "peak_memory_mb": self.peak_memory_bytes / 2**20,

@@ -27,7 +27,9 @@ def goal_fusion(request: pytest.FixtureRequest) -> str:
 
 def make_policy(goal_fusion: str = "image") -> Policy:
     torch.manual_seed(0)
-    config = PolicyConfig(image_size=16, state_dim=2, policy_image_size=16, goal_fusion=goal_fusion)
+    config = PolicyConfig(
+        image_size=16, state_dim=2, policy_image_size=16, goal_fusion=goal_fusion, bounded_mean=True
+    )
     return Policy(config).eval()
 
 
@@ -119,11 +121,28 @@ def test_new_policies_fuse_the_goal_with_the_current_view() -> None:
     assert torch.allclose(late_mean[0], late_mean[1])  # "core": only h_t carries the view
 
 
-def test_a_policy_saved_before_goal_fusion_existed_loads_as_it_was_trained() -> None:
+def test_a_policy_saved_before_goal_fusion_and_bounded_means_loads_as_it_was_trained() -> None:
     old = make_policy("core")
-    saved_config = {k: v for k, v in old.config.to_dict().items() if k != "goal_fusion"}
+    newer_fields = ("goal_fusion", "bounded_mean")
+    saved_config = {k: v for k, v in old.config.to_dict().items() if k not in newer_fields}
     loaded = Policy(PolicyConfig(**saved_config))
     loaded.load_state_dict(old.state_dict())  # strict: the same layers, no fusion MLP
     assert loaded.config.goal_fusion == "core"
-    assert PPOConfig.from_dict({"world": "kuka"}).goal_fusion == "core"  # its run settings, likewise
-    assert PPOConfig().goal_fusion == "image"  # new runs fuse
+    assert loaded.config.bounded_mean is False
+    legacy_run = PPOConfig.from_dict({"world": "kuka"})  # its run settings, likewise
+    assert (legacy_run.goal_fusion, legacy_run.bounded_mean) == ("core", False)
+    assert (PPOConfig().goal_fusion, PPOConfig().bounded_mean) == ("image", True)  # new runs
+
+
+def test_the_action_mean_stays_inside_the_action_range_however_large_the_head_output() -> None:
+    bounded = make_policy("image")
+    with torch.no_grad():
+        bounded.actor_mean[-1].bias.fill_(50.0)  # a head that has drifted far to one side
+    x = make_inputs(5)
+    goal = bounded.encode_goal(x["goal"])
+    with torch.no_grad():
+        inputs = (x["images"][0], x["var_embedding"][0], x["state"][0])
+        mean, _, _ = bounded.step(*inputs, goal, bounded.initial_state(B), torch.ones(B))
+    assert mean.abs().max() <= 1.0
+    samples = bounded.distribution(mean).sample((2000,)).clamp(-1.0, 1.0)
+    assert (samples < 0.99).float().mean() > 0.3  # clipped samples still differ: the noise still explores
