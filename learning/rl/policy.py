@@ -45,6 +45,9 @@ class PolicyConfig:
     aux_heads: bool = False
     goal_fusion: GoalFusion = "core"  # "core" for checkpoints saved before the field existed
     bounded_mean: bool = False  # tanh on the action mean (False: checkpoints from before the field existed)
+    goal_match: bool = (
+        False  # also hand the fusion f_I(I_t)·f_S(S_goal), the reward the policy is earning now
+    )
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -133,9 +136,12 @@ class Policy(nn.Module):
             )
         else:
             self.goal_encoder = SoundEncoder(goal_features)
+        if config.goal_match and (config.goal_encoder != "var" or config.goal_fusion != "image"):
+            raise ValueError("goal_match needs the VAR's goal embedding and goal_fusion='image'")
         if config.goal_fusion == "image":
+            fused_in = h + goal_features + int(config.goal_match)
             self.goal_image_fusion = nn.Sequential(
-                layer_init(nn.Linear(h + goal_features, h)), nn.ReLU(), layer_init(nn.Linear(h, h)), nn.ReLU()
+                layer_init(nn.Linear(fused_in, h)), nn.ReLU(), layer_init(nn.Linear(h, h)), nn.ReLU()
             )
             joined = 2 * h
         else:
@@ -157,9 +163,15 @@ class Policy(nn.Module):
     def initial_state(self, batch: int) -> torch.Tensor:
         return torch.zeros(batch, self.config.hidden)
 
+    @property
+    def goal_feature_size(self) -> int:
+        return GOAL_FEATURES + (self.config.goal_dim if self.config.goal_match else 0)
+
     def encode_goal(self, goal: torch.Tensor) -> torch.Tensor:
-        """goal: (B, goal_dim) VAR embedding, or (B, 100, 40) MFCC for a learned encoder. Once per episode."""
-        return self.goal_encoder(goal)
+        """goal: (B, goal_dim) VAR embedding, or (B, 100, 40) MFCC for a learned encoder. Once per episode.
+        With goal_match the raw embedding rides along (last goal_dim columns) for the per-step match."""
+        features = self.goal_encoder(goal)
+        return torch.cat([features, goal], dim=-1) if self.config.goal_match else features
 
     def encode_inputs(
         self, images: torch.Tensor, var_embedding: torch.Tensor, state: torch.Tensor
@@ -168,12 +180,21 @@ class Policy(nn.Module):
         return F.relu(self.image_encoder(images) + self.vector_encoder(vector))
 
     def heads(
-        self, core: torch.Tensor, inputs: torch.Tensor, goal_features: torch.Tensor
+        self,
+        core: torch.Tensor,
+        inputs: torch.Tensor,
+        goal_features: torch.Tensor,
+        var_embedding: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """core: the GRU output; inputs: this step's features before the GRU (x_t)."""
         goal = goal_features
         if self.config.goal_fusion == "image":
-            goal = self.goal_image_fusion(torch.cat([inputs, goal_features], dim=-1))
+            parts = [inputs, goal_features]
+            if self.config.goal_match:
+                raw_goal = goal_features[..., GOAL_FEATURES:]
+                parts[1] = goal_features[..., :GOAL_FEATURES]
+                parts.append((var_embedding * raw_goal).sum(dim=-1, keepdim=True))
+            goal = self.goal_image_fusion(torch.cat(parts, dim=-1))
         joined = torch.cat([core, goal], dim=-1)
         mean = self.actor_mean(joined)
         if self.config.bounded_mean:
@@ -198,7 +219,7 @@ class Policy(nn.Module):
         inputs = self.encode_inputs(images, var_embedding, state)
         core, _ = self.gru(inputs.unsqueeze(0), hidden.unsqueeze(0))
         hidden = core[0]
-        mean, value = self.heads(hidden, inputs, goal_features)
+        mean, value = self.heads(hidden, inputs, goal_features, var_embedding)
         return mean, value, hidden
 
     def distribution(self, mean: torch.Tensor) -> Normal:
@@ -231,5 +252,5 @@ class Policy(nn.Module):
             out, hidden = self.gru(inputs[begin:end], hidden * keep[begin])
             cores.append(out)
         core = torch.cat(cores)
-        mean, value = self.heads(flat(core), flat(inputs), flat(goal_features))
+        mean, value = self.heads(flat(core), flat(inputs), flat(goal_features), flat(var_embedding))
         return mean.view(steps, batch, -1), value.view(steps, batch), inputs

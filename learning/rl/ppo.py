@@ -49,7 +49,7 @@ from learning.rl.rewards import (
 CHECKPOINT_KIND = "varbot-policy"
 
 # what runs saved before a field existed were trained with
-LEGACY_DEFAULTS = {"goal_fusion": "core", "bounded_mean": False}
+LEGACY_DEFAULTS = {"goal_fusion": "core", "bounded_mean": False, "goal_match": False}
 
 
 @dataclass
@@ -69,6 +69,7 @@ class PPOConfig:
     init_encoders: str | None = None  # one-hot pre-trained image + goal encoders (learning.rl.pretrain)
     goal_fusion: GoalFusion = "image"  # how the goal meets the observation (learning.rl.policy)
     bounded_mean: bool = True  # keep the Gaussian's mean inside the action range (learning.rl.policy)
+    goal_match: bool = False  # the policy also sees f_I(I_t)·f_S(S_goal) (learning.rl.policy); experimental
     image_size: int = 96  # rendered size; must equal the VAR's input size
     policy_image_size: int = 32
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
@@ -300,6 +301,7 @@ class PPOTrainer:
             aux_heads=c.aux_loss_coef > 0,
             goal_fusion=c.goal_fusion,
             bounded_mean=c.bounded_mean,
+            goal_match=c.goal_match,
         )
         self.policy = Policy(policy_config)
         if c.init_encoders is not None:
@@ -380,7 +382,7 @@ class PPOTrainer:
             self.goals.embeddings.shape[1:] if c.goal_encoder == "var" else self.goals.features.shape[1:]
         )
         self.goal_input = torch.zeros(E, *goal_shape)
-        self.goal_features = torch.zeros(E, 64)
+        self.goal_features = torch.zeros(E, self.policy.goal_feature_size)
         with torch.inference_mode():
             self._new_goals(np.arange(E), self.intent)
 

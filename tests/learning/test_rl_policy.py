@@ -114,9 +114,10 @@ def test_new_policies_fuse_the_goal_with_the_current_view() -> None:
     core = torch.zeros(B, net.config.hidden)  # same recurrent state: only the current view differs
     with torch.no_grad():
         inputs = net.encode_inputs(x["images"][0], x["var_embedding"][0], x["state"][0])
-        mean, _ = net.heads(core, inputs, goal)
+        mean, _ = net.heads(core, inputs, goal, x["var_embedding"][0])
         late = make_policy("core")
-        late_mean, _ = late.heads(core, inputs, late.encode_goal(x["goal"][:1]).expand(B, -1))
+        late_goal = late.encode_goal(x["goal"][:1]).expand(B, -1)
+        late_mean, _ = late.heads(core, inputs, late_goal, x["var_embedding"][0])
     assert not torch.allclose(mean[0], mean[1])  # the goal's contribution depends on what is in view
     assert torch.allclose(late_mean[0], late_mean[1])  # "core": only h_t carries the view
 
@@ -146,3 +147,20 @@ def test_the_action_mean_stays_inside_the_action_range_however_large_the_head_ou
     assert mean.abs().max() <= 1.0
     samples = bounded.distribution(mean).sample((2000,)).clamp(-1.0, 1.0)
     assert (samples < 0.99).float().mean() > 0.3  # clipped samples still differ: the noise still explores
+
+
+def test_with_goal_match_the_fusion_sees_how_well_the_view_matches_the_goal() -> None:
+    torch.manual_seed(0)
+    shape = {"image_size": 16, "state_dim": 2, "policy_image_size": 16}
+    config = PolicyConfig(**shape, goal_fusion="image", bounded_mean=True, goal_match=True)
+    net, x = Policy(config).eval(), make_inputs(6)
+    goal_embedding = torch.nn.functional.normalize(x["goal"][:1], dim=-1).expand(B, -1)
+    goal = net.encode_goal(goal_embedding)
+    assert goal.shape == (B, net.goal_feature_size)
+    core, inputs = torch.zeros(B, net.config.hidden), torch.zeros(B, net.config.hidden)
+    with torch.no_grad():
+        on_goal, _ = net.heads(core, inputs, goal, goal_embedding)  # the view embeds as the goal does
+        opposite, _ = net.heads(core, inputs, goal, -goal_embedding)
+    assert not torch.allclose(on_goal, opposite)  # only the match term differs between the two calls
+    with pytest.raises(ValueError, match="goal_match"):
+        Policy(PolicyConfig(**shape, goal_fusion="core", goal_match=True))

@@ -77,7 +77,7 @@ def test_update_recomputes_the_rollout_log_probabilities_across_episode_ends(
 def test_resuming_from_a_checkpoint_gives_identical_next_updates(
     tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
 ) -> None:
-    config = tiny_config(total_steps=2 * 24, reward="var", current_sound=False)
+    config = tiny_config(total_steps=2 * 24, reward="var", current_sound=False, goal_match=True)
     straight = make(config, tmp_path / "straight", var_checkpoint, goal_clips)
     try:
         straight.train(progress=False)
