@@ -48,8 +48,10 @@ from learning.rl.rewards import (
 
 CHECKPOINT_KIND = "varbot-policy"
 
-# what runs saved before a field existed were trained with
-LEGACY_DEFAULTS = {"goal_fusion": "core", "bounded_mean": False, "goal_match": False}
+# what runs saved before these policy options existed were trained with: the policy config's own defaults
+LEGACY_DEFAULTS = {
+    f.name: f.default for f in fields(PolicyConfig) if f.name in ("goal_fusion", "bounded_mean", "goal_match")
+}
 
 
 @dataclass
@@ -213,6 +215,10 @@ class EpisodeStats:
     successes: deque = field(default_factory=lambda: deque(maxlen=100))
     intents: deque = field(default_factory=lambda: deque(maxlen=100))  # -1: unknown (older checkpoints)
 
+    @classmethod
+    def over_last(cls, episodes: int) -> "EpisodeStats":
+        return cls(**{f.name: deque(maxlen=episodes) for f in fields(cls)})
+
     def success_by_intent(self, num_intents: int) -> list[float]:
         """Recent success rate of each intent's episodes (NaN for an intent with none in the window)."""
         pairs = list(zip(self.intents, self.successes, strict=True))
@@ -259,7 +265,7 @@ class PPOTrainer:
         self.rng = np.random.default_rng(config.seed)
         self.torch_rng = torch.Generator().manual_seed(config.seed)
         self.return_rms = RunningMeanStd()
-        self.stats = EpisodeStats(*(deque(maxlen=config.success_window) for _ in range(4)))
+        self.stats = EpisodeStats.over_last(config.success_window)
         self.timings = Timings()
         self.peak_memory_bytes = 0
         self.policy: Policy | None = None
