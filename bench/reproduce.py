@@ -10,6 +10,11 @@ Missing pieces are made first through the project's own commands: the corpus (`v
 VAR's triplets (`varbot var collect`) and the VAR (`varbot var train`), unless --var names a checkpoint to
 use.
 
+Two training options. --hard-target-share S (default 0.5, as every new run; 0 draws every target uniformly,
+as the paper) gives a share S of the episodes to targets whose recent mean return (the run's own reward,
+intrinsic for VAR) is furthest below the best target's. --target-intents 0 trains on target 0 only: the
+diagnostic that showed "zero" alone is learnable; such runs go under "diagnostics", not into the table.
+
 `bench/results/reproduce.json` keeps one record per row: status (complete / partial), env steps, wall time,
 steps/s, labels used (counted as the paper does), success per unheard tier and per intent, peak memory, the
 curve PNG. Success-vs-steps curves: `bench/results/reproduce_<world>-<sounds>.png`. Never tuned on test
@@ -74,6 +79,18 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument("--tag", default="full", help="label stored with the rows (e.g. reduced)")
     parser.add_argument("--resume", action="store_true", help="continue rows from their checkpoints")
     parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument(
+        "--hard-target-share",
+        type=float,
+        default=0.5,
+        help="curriculum: share of episodes whose target favours low recent return (0: uniform, the paper)",
+    )
+    parser.add_argument(
+        "--target-intents",
+        type=lambda text: [int(k) for k in text.split(",")],
+        default=None,
+        help="diagnostics: the world asks only for these targets, e.g. 0 or 0,3 (default: all)",
+    )
     return parser.parse_args()
 
 
@@ -177,6 +194,8 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         total_steps=args.steps,
         image_size=image_size or 96,
         seed=args.seed,
+        hard_target_share=args.hard_target_share,
+        target_intents=args.target_intents,
     )
     if method == "sparse":
         encoders = ensure_encoders(world, sounds, config.policy_image_size, args)
@@ -186,10 +205,11 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
 
     def on_update(record: dict) -> bool:
         if record["update"] % 10 == 0:
-            previous = results["rows"].get(key, {})
+            store, entry = section(results, args), entry_key(key, args)
+            previous = store.get(entry, {})
             if previous.get("tag") != args.tag:  # a new run of the row: show none of the old run's figures
                 previous = {"row": row, "method": method, "tag": args.tag}
-            results["rows"][key] = {**previous, "status": "running", "progress": record}
+            store[entry] = {**previous, "status": "running", "progress": record}
             save_results(results)
         return args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
 
@@ -231,6 +251,17 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         "curves": str(run_dir / "curves.png"),
         "config": payload["config"],
     }
+
+
+def section(results: dict, args: argparse.Namespace) -> dict:
+    """Where a run's record goes: diagnostic runs (--target-intents) are kept apart from the table's rows."""
+    return results.setdefault("diagnostics", {}) if args.target_intents else results["rows"]
+
+
+def entry_key(key: str, args: argparse.Namespace) -> str:
+    if not args.target_intents:
+        return key
+    return f"{key} targets {','.join(map(str, args.target_intents))} ({args.tag})"
 
 
 def curves(results: dict) -> None:
@@ -276,14 +307,15 @@ def main() -> None:
             )
     results = load_results()
     for key in keys:
-        done = results["rows"].get(key, {})
+        store, entry = section(results, args), entry_key(key, args)
+        done = store.get(entry, {})
         if args.resume and done.get("status") == "complete" and done.get("tag") == args.tag:
-            print(f"{key}: complete, skipped")
+            print(f"{entry}: complete, skipped")
             continue
         if done.get("tag", args.tag) != args.tag and "success" in done:
             results.setdefault("earlier_runs", []).append(done)  # kept for comparison, not replaced
             save_results(results)
-        results["rows"][key] = run_row(key, args, results)
+        store[entry] = run_row(key, args, results)
         curves(results)
         save_results(results)
     print_table(results)

@@ -42,6 +42,12 @@ def train(
         Path | None,
         typer.Option(help="Baselines: start from one-hot pre-trained encoders (`varbot rl pretrain`)."),
     ] = None,
+    hard_target_share: Annotated[
+        float,
+        typer.Option(
+            help="Curriculum: share of episodes whose target favours low recent return (0: uniform)."
+        ),
+    ] = 0.5,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
@@ -68,11 +74,13 @@ def train(
         num_envs=envs,
         num_minibatches=2 if envs % 2 == 0 else 1,
         seed=seed,
+        hard_target_share=hard_target_share,
     )
     run_dir = run_dir or data_dir() / "rl" / "runs" / f"{world}-{sounds}-{method}"
     try:
         if init_encoders is not None:
             config = replace(config, init_encoders=str(init_encoders))
+        config.validate()
         summary = train_run(config, run_dir, var if needs_var(method) else None, resume=resume)
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         _fail(str(error))

@@ -20,7 +20,9 @@ NO_SOUND = -1  # `heard` when nothing (or several things) is in view
 class RLInfo(gym.Wrapper):
     """Normalises `info` to: intent (int), heard (int, -1 = nothing), success (bool), distance (float, m to
     the target, simulator ground truth used only by the shaped-reward baseline), episode (int, index within
-    the schedule; -1 once a schedule is exhausted). With `mirror_in_info` set (the learner sets it on the
+    the schedule; -1 once a schedule is exhausted). With `intent_weights` set (the learner's curriculum, via
+    `vector_env.set_attr`), an episode outside a schedule draws its intent with those probabilities instead
+    of the world's uniform draw. With `mirror_in_info` set (the learner sets it on the
     one environment a watcher follows: `vector_env.set_attr`), also mirror: the world's pose as JSON
     (`sim.mirror`), so a watcher needs no extra round trip to the worker."""
 
@@ -29,6 +31,7 @@ class RLInfo(gym.Wrapper):
         self.schedule = list(schedule) if schedule is not None else None
         self.episode = -1
         self.mirror_in_info = False
+        self.intent_weights: list[float] | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
         self.episode += 1
@@ -36,6 +39,10 @@ class RLInfo(gym.Wrapper):
         if self.schedule is not None and self.episode < len(self.schedule):
             intent, seed = self.schedule[self.episode]
             options["intent"] = intent
+        elif self.intent_weights is not None and "intent" not in options:
+            # a seeded reset draws from its seed, later episodes from the world's own (seeded) generator
+            rng = np.random.default_rng(seed) if seed is not None else self.env.unwrapped.np_random
+            options["intent"] = int(rng.choice(len(self.intent_weights), p=self.intent_weights))
         obs, info = self.env.reset(seed=seed, options=options or None)
         return obs, self._info(obs, info)
 

@@ -27,7 +27,7 @@ def plot_run(run_dir: Path, out: Path | None = None) -> Path | None:
         return None
     out = Path(out or Path(run_dir) / "curves.png")
     steps = np.array([r["global_step"] for r in records])
-    fig, axes = plt.subplots(2, 3, figsize=(14, 7))
+    fig, axes = plt.subplots(2, 4, figsize=(18, 7))
     panels = [
         ("recent success rate", ["recent_success"]),
         ("episode return (intrinsic / task reward)", ["episode_return"]),
@@ -53,6 +53,8 @@ def plot_run(run_dir: Path, out: Path | None = None) -> Path | None:
     ax.xaxis.set_major_formatter(THOUSANDS)
     ax.legend(fontsize=8, loc="lower left")
     _plot_success_by_intent(axes.flat[0], steps, records)
+    _plot_target_weights(axes.flat[6], steps, records)
+    axes.flat[7].axis("off")
     axes.flat[0].set_ylim(-0.02, 1.02)
     fig.suptitle(str(run_dir))
     fig.tight_layout()
@@ -70,6 +72,22 @@ def _plot_success_by_intent(ax: plt.Axes, steps: np.ndarray, records: list[dict]
         ax.plot(steps, rates, linewidth=0.8, alpha=0.7, label=f"intent {intent}")
     if width:
         ax.legend(fontsize=7, ncol=2)
+
+
+def _plot_target_weights(ax: plt.Axes, steps: np.ndarray, records: list[dict]) -> None:
+    """How often each target was asked for (the curriculum's probabilities); blank for uniform runs."""
+    weights = [r.get("intent_weights") for r in records]
+    width = max((len(w) for w in weights if w), default=0)
+    if not width:
+        ax.axis("off")
+        return
+    for intent in range(width):
+        ax.plot(steps, [w[intent] if w else np.nan for w in weights], linewidth=0.8, label=f"intent {intent}")
+    ax.set_title("target probabilities (curriculum)")
+    ax.set_xlabel("env steps")
+    ax.xaxis.set_major_formatter(THOUSANDS)
+    ax.set_ylim(0, 1)
+    ax.legend(fontsize=7, ncol=2)
 
 
 def plot_success_curves(runs: dict[str, Path], out: Path, title: str = "success rate vs env steps") -> Path:

@@ -48,9 +48,12 @@ from learning.rl.rewards import (
 
 CHECKPOINT_KIND = "varbot-policy"
 
-# what runs saved before these policy options existed were trained with: the policy config's own defaults
+# what runs saved before these options existed were trained with: the policy config's own defaults, and
+# targets drawn uniformly
+LEGACY_POLICY_OPTIONS = ("goal_fusion", "bounded_mean", "goal_match")
 LEGACY_DEFAULTS = {
-    f.name: f.default for f in fields(PolicyConfig) if f.name in ("goal_fusion", "bounded_mean", "goal_match")
+    **{f.name: f.default for f in fields(PolicyConfig) if f.name in LEGACY_POLICY_OPTIONS},
+    "hard_target_share": 0.0,
 }
 
 
@@ -72,6 +75,8 @@ class PPOConfig:
     goal_fusion: GoalFusion = "image"  # how the goal meets the observation (learning.rl.policy)
     bounded_mean: bool = True  # keep the Gaussian's mean inside the action range (learning.rl.policy)
     goal_match: bool = False  # the policy also sees f_I(I_t)·f_S(S_goal) (learning.rl.policy); experimental
+    hard_target_share: float = 0.5  # share of episodes whose target favours low recent return (0: uniform)
+    target_intents: list[int] | None = None  # diagnostics: the world asks only for these targets (None: all)
     image_size: int = 96  # rendered size; must equal the VAR's input size
     policy_image_size: int = 32
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
@@ -124,6 +129,10 @@ class PPOConfig:
             raise ValueError("the intrinsic reward needs the VAR's goal embedding: use goal_encoder='var'")
         if self.current_sound and self.reward != "var":
             raise ValueError("--current-sound adds to the intrinsic reward; it needs reward='var'")
+        if not 0.0 <= self.hard_target_share <= 1.0:
+            raise ValueError(f"hard_target_share must be in [0, 1], got {self.hard_target_share}")
+        if self.target_intents is not None and not self.target_intents:
+            raise ValueError("target_intents must name at least one target (None: all of them)")
         if self.aux_loss_coef and self.goal_encoder != "learned":
             raise ValueError("auxiliary losses train the baselines' own encoders: use goal_encoder='learned'")
         if self.init_encoders is not None and self.goal_encoder != "learned":
@@ -224,6 +233,25 @@ class EpisodeStats:
         pairs = list(zip(self.intents, self.successes, strict=True))
         return [_mean_or_nan([s for i, s in pairs if i == intent]) for intent in range(num_intents)]
 
+    def return_by_intent(self, num_intents: int) -> list[float]:
+        """Recent mean episode return of each intent (NaN for an intent with none in the window)."""
+        pairs = list(zip(self.intents, self.returns, strict=True))
+        return [_mean_or_nan([r for i, r in pairs if i == intent]) for intent in range(num_intents)]
+
+
+def curriculum_weights(mean_returns: list[float], hard_share: float) -> list[float]:
+    """Target probabilities: `1 - hard_share` spread evenly, `hard_share` in proportion to how far each
+    target's recent mean return lies below the best one's. Uniform until every target has episodes.
+
+    The returns are whatever the run is rewarded with (the intrinsic reward for VAR runs), so a target the
+    policy has not learned yet comes up more often, without its success being known."""
+    k = len(mean_returns)
+    gaps = max(mean_returns) - np.asarray(mean_returns, dtype=np.float64) if k else np.zeros(0)
+    if not k or np.isnan(gaps).any() or gaps.sum() <= 0:
+        return [1.0 / k] * k
+    weights = (1.0 - hard_share) / k + hard_share * gaps / gaps.sum()
+    return [float(w) for w in weights / weights.sum()]
+
 
 class PPOTrainer:
     """Owns the environments, the frozen VAR, the policy and the optimiser for one run directory."""
@@ -271,6 +299,7 @@ class PPOTrainer:
         self.policy: Policy | None = None
         self.init_policy = init_policy
         self.needs_reset = True  # environments are (re-)seeded before the first update and after a resume
+        self.intent_weights: list[float] | None = None  # the curriculum's last target probabilities
         self.on_rollout_step: Callable[[RolloutStep], None] | None = None  # see `watch`
 
     # -- set-up ----------------------------------------------------------------------------------------------
@@ -295,6 +324,12 @@ class PPOTrainer:
         first = self.vector_envs[0]
         self.state_dim = int(first.single_observation_space["state"].shape[0])
         self.num_intents = int(first.get_attr("num_intents")[0])
+        unknown = sorted(set(c.target_intents or []) - set(range(self.num_intents)))
+        if unknown:
+            self.close()
+            raise ValueError(
+                f"target_intents {unknown} are not targets of the {c.world} world (0..{self.num_intents - 1})"
+            )
         torch.manual_seed(c.seed)
         policy_config = PolicyConfig(
             image_size=c.image_size,
@@ -361,9 +396,27 @@ class PPOTrainer:
         self.goal_input[envs] = self._goal_inputs(self.goal_clip[envs])
         self.goal_features[envs] = self.policy.encode_goal(self.goal_input[envs])
 
+    def _send_intent_weights(self) -> None:
+        """The target probabilities (curriculum, restricted targets), to every worker; they use them at their
+        next resets."""
+        c = self.config
+        if not (c.hard_target_share or c.target_intents) or not self.goals.has_intents:
+            return
+        targets = sorted(set(c.target_intents or range(self.num_intents)))
+        returns = self.stats.return_by_intent(self.num_intents)
+        weights = [0.0] * self.num_intents
+        for target, weight in zip(
+            targets, curriculum_weights([returns[t] for t in targets], c.hard_target_share), strict=True
+        ):
+            weights[target] = weight
+        for envs in self.vector_envs:
+            envs.set_attr("intent_weights", [weights] * envs.num_envs)
+        self.intent_weights = weights
+
     def _reset_envs(self) -> None:
         """Re-seed every environment (at the start and checkpoint boundaries); clear per-episode state."""
         c, E = self.config, self.config.num_envs
+        self._send_intent_weights()
         seeds = [int(s) for s in np.random.SeedSequence([c.seed, self.update_index]).generate_state(E)]
         results = [
             envs.reset(seed=seeds[group]) for envs, group in zip(self.vector_envs, self.groups, strict=True)
@@ -425,6 +478,7 @@ class PPOTrainer:
         c = self.config
         finished: list[dict[str, float]] = []
         buf = self._allocate()  # outside inference mode: the update needs these as ordinary tensors
+        self._send_intent_weights()
         with torch.inference_mode():
             # policy parameters changed in the last update: recompute the (once per episode) goal features
             self.goal_features = self.policy.encode_goal(self.goal_input)
@@ -796,6 +850,7 @@ class PPOTrainer:
             "success": _mean_or_nan([e["success"] for e in finished]),
             "recent_success": _mean_or_nan(list(self.stats.successes)),
             "recent_success_by_intent": self.stats.success_by_intent(self.num_intents),
+            "intent_weights": self.intent_weights,
             "time": {k: round(v - getattr(before, k), 4) for k, v in asdict(self.timings).items()},
             "peak_memory_mb": self.peak_memory_bytes / 2**20,
             **stats,

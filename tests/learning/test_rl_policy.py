@@ -132,6 +132,7 @@ def test_a_policy_saved_before_goal_fusion_and_bounded_means_loads_as_it_was_tra
     assert loaded.config.bounded_mean is False
     legacy_run = PPOConfig.from_dict({"world": "kuka"})  # its run settings, likewise
     assert (legacy_run.goal_fusion, legacy_run.bounded_mean) == ("core", False)
+    assert legacy_run.hard_target_share == 0.0  # and it drew its targets uniformly
     assert (PPOConfig().goal_fusion, PPOConfig().bounded_mean) == ("image", True)  # new runs
 
 

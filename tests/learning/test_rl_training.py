@@ -13,8 +13,17 @@ import torch
 from rl_helpers import IMAGE, tiny_config
 
 from learning.rl.baselines import method_config
+from learning.rl.envs import make_env_fn, world_id
 from learning.rl.evaluate import deal, episode_schedule, evaluate
-from learning.rl.ppo import EpisodeStats, PPOConfig, PPOTrainer, Rollout, RolloutStep, load_policy
+from learning.rl.ppo import (
+    EpisodeStats,
+    PPOConfig,
+    PPOTrainer,
+    Rollout,
+    RolloutStep,
+    curriculum_weights,
+    load_policy,
+)
 from learning.rl.rewards import ClipBank, clip_bank_from_paths
 from learning.var.checkpoint import save_var
 from learning.var.model import VAR, VARConfig
@@ -77,7 +86,15 @@ def test_update_recomputes_the_rollout_log_probabilities_across_episode_ends(
 def test_resuming_from_a_checkpoint_gives_identical_next_updates(
     tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
 ) -> None:
-    config = tiny_config(total_steps=2 * 24, reward="var", current_sound=False, goal_match=True)
+    config = tiny_config(
+        total_steps=2 * 48,
+        num_envs=4,
+        max_episode_steps=3,
+        reward="var",
+        current_sound=False,
+        goal_match=True,
+        hard_target_share=0.5,
+    )
     straight = make(config, tmp_path / "straight", var_checkpoint, goal_clips)
     try:
         straight.train(progress=False)
@@ -106,6 +123,9 @@ def test_resuming_from_a_checkpoint_gives_identical_next_updates(
     # the per-intent success window is restored too (NaN where an intent had no episode yet)
     assert len(lines[1]["recent_success_by_intent"]) == 4
     np.testing.assert_equal(lines[1]["recent_success_by_intent"], original[1]["recent_success_by_intent"])
+    # so is the curriculum: the resumed run draws its targets with the same probabilities
+    assert lines[1]["intent_weights"] == original[1]["intent_weights"]
+    assert sum(lines[1]["intent_weights"]) == pytest.approx(1.0) and lines[1]["intent_weights"] != [0.25] * 4
 
 
 Watcher = Callable[[RolloutStep], None]
@@ -265,6 +285,35 @@ def test_eval_command_explains_a_missing_checkpoint(tmp_path: Path) -> None:
     assert "no policy checkpoint" in result.output and "varbot rl train" in result.output
 
 
+def test_a_run_can_be_restricted_to_some_targets(
+    tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
+) -> None:
+    trainer = make(tiny_config(target_intents=[0]), tmp_path / "zero", var_checkpoint, goal_clips)
+    try:
+        trainer._reset_envs()
+        buf, finished = trainer.collect_rollout()
+    finally:
+        trainer.close()
+    assert trainer.intent_weights == [1.0, 0.0, 0.0, 0.0]
+    assert len(finished) >= 2 and set(buf.intent.flatten().tolist()) == {0}
+    goals = trainer.goals.intents[np.asarray(trainer.goal_clip)]
+    assert set(goals.tolist()) == {0}  # the goal clips follow the world's target
+    with pytest.raises(ValueError, match=r"target_intents \[4\] are not targets of the kuka world \(0..3\)"):
+        make(tiny_config(target_intents=[0, 4]), tmp_path / "four", var_checkpoint, goal_clips)
+
+
+def test_train_command_refuses_a_curriculum_share_outside_0_to_1(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from learning.rl.cli import app
+
+    result = CliRunner().invoke(
+        app, ["train", "--method", "rsi", "--hard-target-share", "1.5", "--run-dir", str(tmp_path)]
+    )
+    assert result.exit_code == 1
+    assert "hard_target_share must be in [0, 1], got 1.5" in result.output
+
+
 def test_rsi_baseline_trains_on_the_turtlebot_with_auxiliary_losses_and_counts_its_labels(
     tmp_path: Path, goal_clips: ClipBank
 ) -> None:
@@ -288,3 +337,47 @@ def test_recent_success_is_also_reported_per_intent() -> None:
         stats.successes.append(success)
     # intent 2's only episode had no known goal (NaN); -1 marks episodes from before intents were logged
     np.testing.assert_equal(stats.success_by_intent(4), [0.0, 0.5, float("nan"), 1.0])
+
+
+def test_the_curriculum_favours_targets_whose_recent_return_is_low() -> None:
+    stats = EpisodeStats()
+    for intent, episode_return in [(0, -10.0), (1, 40.0), (2, 30.0), (3, 40.0), (0, -10.0)]:
+        stats.intents.append(intent)
+        stats.returns.append(episode_return)
+    assert stats.return_by_intent(4) == [-10.0, 40.0, 30.0, 40.0]
+    weights = curriculum_weights(stats.return_by_intent(4), hard_share=0.5)
+    # half spread evenly, half by the gap to the best return (50 and 10 of 60)
+    assert weights == pytest.approx([0.125 + 0.5 * 50 / 60, 0.125, 0.125 + 0.5 * 10 / 60, 0.125])
+    assert curriculum_weights([-10.0, 40.0, 30.0, 40.0], hard_share=0.0) == [0.25] * 4
+    assert curriculum_weights([5.0] * 4, hard_share=0.5) == [0.25] * 4  # nothing to favour
+    assert curriculum_weights([float("nan"), 1.0, 2.0, 3.0], hard_share=0.5) == [0.25] * 4  # not seen yet
+
+
+def test_a_world_draws_its_targets_with_the_curriculums_weights() -> None:
+    env = make_env_fn(world_id("kuka"), IMAGE, max_steps=2)()
+    try:
+        env.reset(seed=0)
+        env.intent_weights = [0.0, 0.0, 1.0, 0.0]
+        assert {env.reset()[1]["intent"] for _ in range(5)} == {2}
+        env.intent_weights = [0.5, 0.5, 0.0, 0.0]
+        assert {env.reset()[1]["intent"] for _ in range(30)} == {0, 1}
+        assert env.reset(seed=7)[1]["intent"] == env.reset(seed=7)[1]["intent"]  # seeded draws repeat
+    finally:
+        env.close()
+
+
+def test_the_trainers_curriculum_reaches_its_workers(
+    tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
+) -> None:
+    trainer = make(tiny_config(hard_target_share=1.0), tmp_path, var_checkpoint, goal_clips)
+    try:
+        for intent, episode_return in [(0, 5.0), (1, 5.0), (2, -5.0), (3, 4.0)]:
+            trainer.stats.intents.append(intent)
+            trainer.stats.returns.append(episode_return)
+        trainer._reset_envs()
+        buf, finished = trainer.collect_rollout()
+    finally:
+        trainer.close()
+    # all of the share goes to the gaps: 10 of 11 to target 2, 1 of 11 to target 3
+    assert trainer.intent_weights == pytest.approx([0.0, 0.0, 10 / 11, 1 / 11])
+    assert len(finished) >= 2 and set(buf.intent.flatten().tolist()) <= {2, 3}
