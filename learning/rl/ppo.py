@@ -246,8 +246,10 @@ def curriculum_weights(mean_returns: list[float], hard_share: float) -> list[flo
     The returns are whatever the run is rewarded with (the intrinsic reward for VAR runs), so a target the
     policy has not learned yet comes up more often, without its success being known."""
     k = len(mean_returns)
-    gaps = max(mean_returns) - np.asarray(mean_returns, dtype=np.float64) if k else np.zeros(0)
-    if not k or np.isnan(gaps).any() or gaps.sum() <= 0:
+    if not k:
+        return []
+    gaps = max(mean_returns) - np.asarray(mean_returns, dtype=np.float64)
+    if np.isnan(gaps).any() or gaps.sum() <= 0:
         return [1.0 / k] * k
     weights = (1.0 - hard_share) / k + hard_share * gaps / gaps.sum()
     return [float(w) for w in weights / weights.sum()]

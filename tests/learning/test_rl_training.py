@@ -351,6 +351,7 @@ def test_the_curriculum_favours_targets_whose_recent_return_is_low() -> None:
     assert curriculum_weights([-10.0, 40.0, 30.0, 40.0], hard_share=0.0) == [0.25] * 4
     assert curriculum_weights([5.0] * 4, hard_share=0.5) == [0.25] * 4  # nothing to favour
     assert curriculum_weights([float("nan"), 1.0, 2.0, 3.0], hard_share=0.5) == [0.25] * 4  # not seen yet
+    assert curriculum_weights([], hard_share=0.5) == []
 
 
 def test_a_world_draws_its_targets_with_the_curriculums_weights() -> None:
