@@ -205,7 +205,7 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
 
     def on_update(record: dict) -> bool:
         if record["update"] % 10 == 0:
-            store, entry = section(results, args), entry_key(key, args)
+            store, entry = record_slot(results, key, args)
             previous = store.get(entry, {})
             if previous.get("tag") != args.tag:  # a new run of the row: show none of the old run's figures
                 previous = {"row": row, "method": method, "tag": args.tag}
@@ -253,15 +253,13 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     }
 
 
-def section(results: dict, args: argparse.Namespace) -> dict:
-    """Where a run's record goes: diagnostic runs (--target-intents) are kept apart from the table's rows."""
-    return results.setdefault("diagnostics", {}) if args.target_intents else results["rows"]
-
-
-def entry_key(key: str, args: argparse.Namespace) -> str:
+def record_slot(results: dict, key: str, args: argparse.Namespace) -> tuple[dict, str]:
+    """Where a run's record goes: a row of the table, or, for a diagnostic run (--target-intents), its own
+    entry under "diagnostics"."""
     if not args.target_intents:
-        return key
-    return f"{key} targets {','.join(map(str, args.target_intents))} ({args.tag})"
+        return results["rows"], key
+    targets = ",".join(map(str, args.target_intents))
+    return results.setdefault("diagnostics", {}), f"{key} targets {targets} ({args.tag})"
 
 
 def curves(results: dict) -> None:
@@ -307,7 +305,7 @@ def main() -> None:
             )
     results = load_results()
     for key in keys:
-        store, entry = section(results, args), entry_key(key, args)
+        store, entry = record_slot(results, key, args)
         done = store.get(entry, {})
         if args.resume and done.get("status") == "complete" and done.get("tag") == args.tag:
             print(f"{entry}: complete, skipped")

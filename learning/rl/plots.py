@@ -52,7 +52,7 @@ def plot_run(run_dir: Path, out: Path | None = None) -> Path | None:
     ax.set_xlabel("env steps")
     ax.xaxis.set_major_formatter(THOUSANDS)
     ax.legend(fontsize=8, loc="lower left")
-    _plot_success_by_intent(axes.flat[0], steps, records)
+    _plot_per_intent(axes.flat[0], steps, records, "recent_success_by_intent")
     _plot_target_weights(axes.flat[6], steps, records)
     axes.flat[7].axis("off")
     axes.flat[0].set_ylim(-0.02, 1.02)
@@ -63,31 +63,28 @@ def plot_run(run_dir: Path, out: Path | None = None) -> Path | None:
     return out
 
 
-def _plot_success_by_intent(ax: plt.Axes, steps: np.ndarray, records: list[dict]) -> None:
-    """Thin lines, one per intent, where the run logged them (runs before that logged only the mean)."""
-    by_intent = [r.get("recent_success_by_intent") for r in records]
-    width = max((len(rates) for rates in by_intent if rates), default=0)
+def _plot_per_intent(ax: plt.Axes, steps: np.ndarray, records: list[dict], key: str) -> bool:
+    """Thin lines, one per intent, of the per-intent list logged under `key` (older runs lack some keys).
+    Returns whether there was anything to draw."""
+    logged = [r.get(key) for r in records]
+    width = max((len(values) for values in logged if values), default=0)
     for intent in range(width):
-        rates = [rates[intent] if rates else np.nan for rates in by_intent]
-        ax.plot(steps, rates, linewidth=0.8, alpha=0.7, label=f"intent {intent}")
+        line = [values[intent] if values else np.nan for values in logged]
+        ax.plot(steps, line, linewidth=0.8, alpha=0.7, label=f"intent {intent}")
     if width:
         ax.legend(fontsize=7, ncol=2)
+    return width > 0
 
 
 def _plot_target_weights(ax: plt.Axes, steps: np.ndarray, records: list[dict]) -> None:
     """How often each target was asked for (the curriculum's probabilities); blank for uniform runs."""
-    weights = [r.get("intent_weights") for r in records]
-    width = max((len(w) for w in weights if w), default=0)
-    if not width:
+    if not _plot_per_intent(ax, steps, records, "intent_weights"):
         ax.axis("off")
         return
-    for intent in range(width):
-        ax.plot(steps, [w[intent] if w else np.nan for w in weights], linewidth=0.8, label=f"intent {intent}")
     ax.set_title("target probabilities (curriculum)")
     ax.set_xlabel("env steps")
     ax.xaxis.set_major_formatter(THOUSANDS)
     ax.set_ylim(0, 1)
-    ax.legend(fontsize=7, ncol=2)
 
 
 def plot_success_curves(runs: dict[str, Path], out: Path, title: str = "success rate vs env steps") -> Path:

@@ -411,6 +411,8 @@ class PPOTrainer:
             targets, curriculum_weights([returns[t] for t in targets], c.hard_target_share), strict=True
         ):
             weights[target] = weight
+        if weights == self.intent_weights:
+            return  # the workers already hold them (a fresh trainer starts from None: it always sends)
         for envs in self.vector_envs:
             envs.set_attr("intent_weights", [weights] * envs.num_envs)
         self.intent_weights = weights
