@@ -52,36 +52,44 @@ def collect(args: argparse.Namespace, var: torch.nn.Module) -> dict[str, np.ndar
     import sim
     from learning.rl.envs import RLInfo
     from learning.rl.rewards import corpus_bank
-    from sim.oracle import oracle_action
 
     bank = corpus_bank(args.sounds, "train").embed(var)
-    clips = bank.embeddings.numpy()
     env = RLInfo(gymnasium.make(sim.world_id(args.world), image_size=int(var.config.image_size)))
-    intents = env.unwrapped.num_intents
     rng = np.random.default_rng(args.seed)
     env.action_space.seed(args.seed)
-    steps: dict[str, list[tuple[float, float, float]]] = {policy: [] for policy in POLICIES}
+    steps: dict[str, list[np.ndarray]] = {policy: [] for policy in POLICIES}
     with tqdm(total=len(POLICIES) * args.episodes, desc=f"reward by distance {args.world}", unit="ep") as bar:
         for policy in POLICIES:
             for episode in range(args.episodes):
-                intent = episode % intents
-                _, info = env.reset(seed=args.seed + episode, options={"intent": intent})
-                goal = clips[rng.choice(np.flatnonzero(bank.intents == intent))]
-                done = False
-                while not done:
-                    action = oracle_action(env) if policy == "oracle" else env.action_space.sample()
-                    observation, _, terminated, truncated, info = env.step(action)
-                    reward = float(image_embedding(var, observation["image"]) @ goal)
-                    steps[policy].append((info["distance"], reward, float(info["heard"] == intent)))
-                    done = terminated or truncated
+                intent = episode % env.unwrapped.num_intents
+                goal = bank.embeddings[bank.sample(np.array([intent]), rng)]
+                steps[policy].append(run_episode(env, policy, intent, args.seed + episode, var, goal))
                 bar.update()
     env.close()
-    return {policy: np.asarray(rows) for policy, rows in steps.items()}
+    return {policy: np.concatenate(episodes) for policy, episodes in steps.items()}
 
 
-def image_embedding(var: torch.nn.Module, image: np.ndarray) -> np.ndarray:
-    with torch.inference_mode():
-        return var.encode_image(torch.from_numpy(image[None])).numpy()[0]
+def run_episode(
+    env: gymnasium.Env, policy: str, intent: int, seed: int, var: torch.nn.Module, goal: torch.Tensor
+) -> np.ndarray:
+    """One episode's (distance, reward, target in view) per step; the images are embedded in one batch."""
+    from learning.rl.rewards import intrinsic_reward_from_embeddings
+    from learning.var.evaluate import embed_images
+    from sim.oracle import oracle_action
+
+    env.reset(seed=seed, options={"intent": intent})
+    images, distances, in_view = [], [], []
+    done = False
+    while not done:
+        action = oracle_action(env) if policy == "oracle" else env.action_space.sample()
+        observation, _, terminated, truncated, info = env.step(action)
+        images.append(observation["image"])
+        distances.append(info["distance"])
+        in_view.append(float(info["heard"] == intent))
+        done = terminated or truncated
+    embedded = torch.from_numpy(embed_images(var, np.stack(images)))
+    rewards = intrinsic_reward_from_embeddings(embedded, goal).numpy()
+    return np.column_stack([distances, rewards, in_view])
 
 
 def binned(steps: np.ndarray, bins: list[float]) -> list[dict]:
