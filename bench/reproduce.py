@@ -74,6 +74,8 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument("--var-dataset", default=None, help="train the VAR on this collected dataset")
     parser.add_argument("--var-max-steps", type=int, default=None, help="shorter VAR schedule (reduced runs)")
     parser.add_argument("--image-size", type=int, default=None, help="default: the VAR's (96 when none)")
+    parser.add_argument("--policy-image-size", type=int, default=32, help="image size the policy CNN sees")
+    parser.add_argument("--ent-coef", type=float, default=0.0, help="PPO entropy bonus")
     parser.add_argument("--episodes-per-intent", type=int, default=50)
     parser.add_argument("--max-minutes", type=float, default=None, help="stop a row after this wall time")
     parser.add_argument("--tag", default="full", help="label stored with the rows (e.g. reduced)")
@@ -196,6 +198,8 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         seed=args.seed,
         hard_target_share=args.hard_target_share,
         target_intents=args.target_intents,
+        policy_image_size=args.policy_image_size,
+        ent_coef=args.ent_coef,
     )
     if method == "sparse":
         encoders = ensure_encoders(world, sounds, config.policy_image_size, args)
