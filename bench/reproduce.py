@@ -74,8 +74,10 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument("--var-dataset", default=None, help="train the VAR on this collected dataset")
     parser.add_argument("--var-max-steps", type=int, default=None, help="shorter VAR schedule (reduced runs)")
     parser.add_argument("--image-size", type=int, default=None, help="default: the VAR's (96 when none)")
-    parser.add_argument("--policy-image-size", type=int, default=32, help="image size the policy CNN sees")
-    parser.add_argument("--ent-coef", type=float, default=0.0, help="PPO entropy bonus")
+    parser.add_argument(
+        "--policy-image-size", type=int, default=None, help="policy CNN input size (default: PPOConfig)"
+    )
+    parser.add_argument("--ent-coef", type=float, default=None, help="PPO entropy bonus (default: PPOConfig)")
     parser.add_argument("--episodes-per-intent", type=int, default=50)
     parser.add_argument("--max-minutes", type=float, default=None, help="stop a row after this wall time")
     parser.add_argument("--tag", default="full", help="label stored with the rows (e.g. reduced)")
@@ -198,8 +200,7 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         seed=args.seed,
         hard_target_share=args.hard_target_share,
         target_intents=args.target_intents,
-        policy_image_size=args.policy_image_size,
-        ent_coef=args.ent_coef,
+        **optional_overrides(args),
     )
     if method == "sparse":
         encoders = ensure_encoders(world, sounds, config.policy_image_size, args)
@@ -255,6 +256,12 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         "curves": str(run_dir / "curves.png"),
         "config": payload["config"],
     }
+
+
+def optional_overrides(args: argparse.Namespace) -> dict:
+    """PPO settings given on the command line; the others keep PPOConfig's defaults."""
+    given = {"policy_image_size": args.policy_image_size, "ent_coef": args.ent_coef}
+    return {name: value for name, value in given.items() if value is not None}
 
 
 def record_slot(results: dict, key: str, args: argparse.Namespace) -> tuple[dict, str]:
