@@ -73,6 +73,9 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument("--var", type=Path, default=None, help="use this VAR checkpoint for the var rows")
     parser.add_argument("--var-dataset", default=None, help="train the VAR on this collected dataset")
     parser.add_argument("--var-max-steps", type=int, default=None, help="shorter VAR schedule (reduced runs)")
+    parser.add_argument(
+        "--var-speed-copies", type=int, default=0, help="train the VAR with this many speed-perturbed copies"
+    )
     parser.add_argument("--image-size", type=int, default=None, help="default: the VAR's (96 when none)")
     parser.add_argument(
         "--policy-image-size", type=int, default=None, help="policy CNN input size (default: PPOConfig)"
@@ -153,13 +156,15 @@ def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
 
     dataset = row_dataset(world, args)
     schedule = f"-{args.var_max_steps}steps" if args.var_max_steps else ""
-    run_dir = data_subdir("bench", "reproduce", "var", f"{Path(dataset).name}-{sounds}{schedule}")
+    speed = f"-speed{args.var_speed_copies}" if args.var_speed_copies else ""
+    run_dir = data_subdir("bench", "reproduce", "var", f"{Path(dataset).name}-{sounds}{schedule}{speed}")
     final = run_dir / "final.pt"
     if not final.exists():
         ensure_dataset(world, sounds, args)
         schedule_args = ["--max-steps", str(args.var_max_steps)] if args.var_max_steps else []
+        speed_args = ["--speed-copies", str(args.var_speed_copies)] if args.var_speed_copies else []
         varbot("var", "train", dataset, "--sounds", sounds, "--run-dir", str(run_dir), "--threads", "1",
-               *schedule_args)  # fmt: skip
+               *schedule_args, *speed_args)  # fmt: skip
     return final
 
 
@@ -224,8 +229,8 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     complete = summary["env_steps"] >= config.num_updates * config.batch_size
     policy, payload = load_policy(run_dir / "checkpoint.pt")
     var = load_frozen_var(var_path)
-    evaluations = {}
-    for split in [s for s in load_corpus(sounds).splits if s != "train"]:
+    evaluations, corpus = {}, load_corpus(sounds)
+    for split in [s for s in corpus.splits if s != "train"]:
         goals = corpus_bank(sounds, split)
         if var is not None:
             goals.embed(var)
@@ -250,11 +255,25 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         "training_recent_success": summary["recent_success"],
         "success": {split: e["success_rate"] for split, e in evaluations.items()},
         "evaluation": evaluations,
+        "var_nearest_command": None if var is None else goal_understanding(var, corpus),
         "paper_success": PAPER[row].get(method.replace("-current-sound", "")),
         "var_checkpoint": None if var_path is None else str(var_path),
         "run_dir": str(run_dir),
         "curves": str(run_dir / "curves.png"),
         "config": payload["config"],
+    }
+
+
+def goal_understanding(var, corpus) -> dict[str, float]:
+    """Per unheard tier, the share of goal clips the VAR embeds nearest their own command (centroids of the
+    training clips): an upper bound on success, since the policy heads for the command the clip embeds as."""
+    from learning.var.evaluate import nearest_command_accuracy
+
+    train, num_intents = corpus.subset("train"), len(corpus.intent_names)
+    return {
+        split: nearest_command_accuracy(var, train, corpus.subset(split), num_intents)[0]
+        for split in corpus.splits
+        if split != "train"
     }
 
 

@@ -189,10 +189,14 @@ def evaluate_command(
     table.add_column("intent")
     table.add_column("episodes", justify="right")
     table.add_column("success", justify="right")
-    for name, count, rate in zip(
-        result.intent_names, result.episodes_by_intent, result.success_by_intent, strict=True
-    ):
-        table.add_row(name, str(count), f"{rate:.1%}")
+    for name in [*result.intent_names, "none"]:
+        table.add_column(f"ended at {name}", justify="right")
+    rows = zip(
+        result.intent_names, result.episodes_by_intent, result.success_by_intent,
+        result.final_view_by_intent, strict=True,
+    )  # fmt: skip
+    for name, count, rate, ended in rows:
+        table.add_row(name, str(count), f"{rate:.1%}", *map(str, ended))
     table.add_row("mean", str(sum(result.episodes_by_intent)), f"{result.success_rate:.1%}")
     Console().print(table)
     typer.echo(f"mean episode length {result.mean_episode_length:.1f}; result: {out}")

@@ -2,6 +2,10 @@
 for four intents), the deterministic policy (the Gaussian's mean), goal clips drawn from an unheard tier,
 per-intent and mean success rate and episode length; optionally a GIF of a few episodes.
 
+`final_view_by_intent` tells failures apart: for each intent, how many episodes ended with the robot at
+each intent's object (the world's `heard` at the last step) or at none of them (the last column). A wrong
+object means the goal was misunderstood; nothing means the robot aimed right but did not arrive.
+
 The episode list (intent, seed) is fixed by `seed`, dealt round-robin to the workers (each worker plays its
 share through `RLInfo`'s schedule), so every method meets exactly the same layouts, intents and goal clips.
 """
@@ -14,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from learning.rl.envs import make_vector_env, world_id
+from learning.rl.envs import NO_SOUND, make_vector_env, world_id
 from learning.rl.policy import Policy, PolicyConfig, downsample_images
 from learning.rl.rewards import ClipBank
 
@@ -30,6 +34,7 @@ class EpisodeResult:
     length: int
     steps_to_success: int | None  # first step at which the world reported success
     final_distance: float  # ground truth, robot to target at the end (diagnosis only)
+    final_heard: int  # the intent whose object the robot was at after the last step; NO_SOUND for none
 
 
 @dataclass
@@ -44,6 +49,7 @@ class EvalResult:
     mean_episode_length: float
     mean_steps_to_success: float | None
     mean_final_distance: float
+    final_view_by_intent: list[list[int]]  # [intent][intent at the end, or the last column: none]
     episodes: list[EpisodeResult] = field(default_factory=list)
     gif: str | None = None
 
@@ -129,11 +135,13 @@ def evaluate(
                         ok = bool(info["final_info"]["success"][e])
                         steps = int(first_success[e]) if first_success[e] > 0 and ok else None
                         distance = float(info["final_info"]["distance"][e])
+                        heard = int(info["final_info"]["heard"][e])
                         results.append(
                             EpisodeResult(
-                                intent, layout_seed, int(goal_clip[e]), ok, int(length[e]), steps, distance
+                                intent, layout_seed, int(goal_clip[e]), ok, int(length[e]), steps, distance,
+                                heard,
                             )
-                        )
+                        )  # fmt: skip
                         bar.update(1)
                 length[done], first_success[done] = 0, -1
                 start = torch.from_numpy(done.astype(np.float32))
@@ -228,9 +236,17 @@ def _summarise(
         mean_episode_length=float(np.mean([r.length for r in results])),
         mean_steps_to_success=float(np.mean(to_success)) if to_success else None,
         mean_final_distance=float(np.mean([r.final_distance for r in results])),
+        final_view_by_intent=final_view_counts(results, len(names)),
         episodes=results,
         gif=gif,
     )
+
+
+def final_view_counts(results: list[EpisodeResult], num_intents: int) -> list[list[int]]:
+    counts = np.zeros((num_intents, num_intents + 1), dtype=np.int64)
+    for r in results:
+        counts[r.intent, r.final_heard if r.final_heard != NO_SOUND else num_intents] += 1
+    return counts.tolist()
 
 
 def _write_gif(frames: list[np.ndarray], path: Path, scale: int = 2) -> str:

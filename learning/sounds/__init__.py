@@ -50,7 +50,13 @@ class SoundCorpus:
             raise ValueError(
                 f"{self.name} has no split {', '.join(unknown)}; it has {', '.join(self.splits)}."
             )
-        rows = np.isin(self.split, wanted)
+        return self._rows(np.isin(self.split, wanted))
+
+    def by_speakers(self, speakers: list[str] | tuple[str, ...], keep: bool = True) -> "SoundCorpus":
+        """The clips of these speakers (`keep`), or of every other speaker."""
+        return self._rows(np.isin(self.speaker, list(speakers)) == keep)
+
+    def _rows(self, rows: np.ndarray) -> "SoundCorpus":
         return replace(
             self,
             features=self.features[rows],

@@ -108,6 +108,15 @@ def train(
     margin: float = 1.0,
     embedding_dim: int = 3,
     augment: bool = True,
+    speed_copies: Annotated[
+        int, typer.Option(help="Add this many faster/slower renderings of every training clip.")
+    ] = 0,
+    speed_range: Annotated[
+        str, typer.Option(help="Playback-rate range of those copies, MIN,MAX.")
+    ] = "0.85,1.15",
+    speakers: Annotated[
+        str | None, typer.Option(help="Comma-separated speakers to train on (default: all of the split).")
+    ] = None,
     seed: int = 0,
     threads: int = 2,
     resume: Annotated[bool, typer.Option(help="Continue from RUN_DIR/last.pt when it exists.")] = True,
@@ -130,6 +139,9 @@ def train(
             margin=margin,
             model=VARConfig(embedding_dim=embedding_dim),
             augment=augment,
+            sound_speakers=tuple(speakers.split(",")) if speakers else None,
+            sound_speed_copies=speed_copies,
+            sound_speed_range=_speed_range(speed_range),
             seed=seed,
             threads=threads,
         )
@@ -182,6 +194,16 @@ def finetune(
     except (ValueError, FileNotFoundError) as error:
         _fail(error)
     _report(result)
+
+
+def _speed_range(text: str) -> tuple[float, float]:
+    try:
+        low, high = (float(part) for part in text.split(","))
+    except ValueError:
+        raise ValueError(f"--speed-range must be MIN,MAX (e.g. 0.85,1.15), got {text!r}") from None
+    if not 0.5 <= low <= high <= 2.0:
+        raise ValueError(f"--speed-range must satisfy 0.5 ≤ MIN ≤ MAX ≤ 2, got {text!r}")
+    return low, high
 
 
 def _report(result) -> None:

@@ -288,6 +288,24 @@ class SoundBank:
                 raise DatasetError(f"No clip by speaker(s) {list(speakers)} in splits {splits}.")
         return cls.build(chosen.features[mask], chosen.intent[mask], len(corpus.intent_names))
 
+    def with_speed_copies(
+        self,
+        corpus: Any,
+        splits: tuple[str, ...],
+        speakers: tuple[str, ...] | None,
+        copies: int,
+        speed: tuple[float, float],
+        seed: int,
+    ) -> "SoundBank":
+        """This bank plus `copies` re-renderings of each chosen clip played faster or slower (tempo, pitch and
+        formants together, as a longer or shorter vocal tract would), for voices training never heard."""
+        chosen = corpus.subset(list(splits))
+        mask = np.isin(chosen.speaker, list(speakers)) if speakers else np.ones(len(chosen.intent), bool)
+        extra = speed_perturbed_features(chosen.clip[mask], corpus.kind, copies, speed, seed)
+        features = np.concatenate([self.features, extra])
+        intent = np.concatenate([self.intent, np.repeat(chosen.intent[mask], copies)])
+        return SoundBank.build(features, intent, self.num_intents)  # fmt: skip
+
     @property
     def num_intents(self) -> int:
         return len(self.counts)
@@ -300,6 +318,27 @@ class SoundBank:
         rows = self.starts[ids] + (rng.random(len(ids)) * self.counts[ids]).astype(np.int64)
         out[spoken] = self.features[rows]
         return out
+
+
+def speed_perturbed_features(
+    paths: np.ndarray, kind: str, copies: int, speed: tuple[float, float], seed: int
+) -> np.ndarray:
+    """MFCC features of `copies` speed-perturbed renderings of every clip, clip by clip (rows c·copies..)."""
+    import torch
+
+    from learning.audio import SILENCE, decode_audio, features_from_waveform
+    from learning.augment import perturb_speed
+
+    generator = torch.Generator().manual_seed(seed)
+    rows = []
+    for path in tqdm(paths, desc=f"speed copies ×{copies}", unit="clip", leave=False):
+        waveform, _ = decode_audio(Path(path).read_bytes())
+        slowed_length = math.ceil(len(waveform) / min(speed[0], 1.0)) + 1  # room for the slowest copy
+        padded = np.pad(waveform, (0, slowed_length - len(waveform)))
+        batch = torch.from_numpy(padded).repeat(copies, 1)
+        for wave in perturb_speed(batch, generator, speed).numpy():
+            rows.append(features_from_waveform(wave, kind))
+    return np.stack(rows) if rows else np.zeros((0, *SILENCE.shape), np.float32)
 
 
 def triplet_sound_ids(heard: np.ndarray, num_intents: int, rng: np.random.Generator):

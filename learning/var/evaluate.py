@@ -44,6 +44,23 @@ def _centroids(embeddings: np.ndarray, labels: np.ndarray, num_intents: int) -> 
     return centroids / np.linalg.norm(centroids, axis=1, keepdims=True).clip(min=1e-9)
 
 
+def command_similarities(var: VAR, known: Any, unknown: Any, num_intents: int) -> np.ndarray:
+    """(clips of `unknown`, intents): cosine of each clip's embedding to the mean direction of each command
+    among the `known` clips. `known` and `unknown` have `features` and `intent` (corpus subsets)."""
+    centroids = _centroids(embed_sounds(var, known.features), known.intent, num_intents)
+    embeddings = embed_sounds(var, unknown.features)
+    return embeddings / np.linalg.norm(embeddings, axis=1, keepdims=True).clip(min=1e-9) @ centroids.T
+
+
+def nearest_command_accuracy(
+    var: VAR, known: Any, unknown: Any, num_intents: int
+) -> tuple[float, np.ndarray]:
+    """How often a clip embeds nearest its own command (what a goal clip must do for the policy to head for
+    the right object); returns the rate and the per-clip hits."""
+    hits = command_similarities(var, known, unknown, num_intents).argmax(axis=1) == unknown.intent
+    return float(hits.mean()), hits
+
+
 def triplet_accuracy(
     image_embeddings: np.ndarray, heard: np.ndarray, var: VAR, bank: SoundBank, seed: int, repeats: int = 2
 ) -> dict[str, float]:

@@ -43,6 +43,8 @@ class TrainConfig:
     run_dir: str  # checkpoints, metrics.jsonl, metrics.png
     sound_splits: tuple[str, ...] = ("train",)
     sound_speakers: tuple[str, ...] | None = None  # restrict the clips to these speakers (a new voice)
+    sound_speed_copies: int = 0  # add this many speed-perturbed renderings of every clip to the bank
+    sound_speed_range: tuple[float, float] = (0.85, 1.15)  # playback-rate factors of those copies
     model: VARConfig = field(default_factory=VARConfig)  # image_size is taken from the dataset
     epochs: int = 12
     max_steps: int | None = None  # overrides epochs: the schedule length in optimiser steps
@@ -76,7 +78,7 @@ class TrainConfig:
     def from_dict(cls, data: dict[str, Any]) -> "TrainConfig":
         data = dict(data)
         data["model"] = VARConfig.from_dict(data.get("model", {}))
-        for key in ("sound_splits", "sound_speakers"):
+        for key in ("sound_splits", "sound_speakers", "sound_speed_range"):
             if data.get(key) is not None:
                 data[key] = tuple(data[key])
         return cls(**{k: v for k, v in data.items() if k in cls.__dataclass_fields__})
@@ -157,6 +159,11 @@ class _Trainer:
         self.corpus_hash = corpus.manifest_hash
         train_rows, val_rows = _split_rows(len(images), config.val_fraction, config.seed)
         bank = SoundBank.from_corpus(corpus, config.sound_splits, config.sound_speakers)
+        if config.sound_speed_copies:
+            bank = bank.with_speed_copies(
+                corpus, config.sound_splits, config.sound_speakers, config.sound_speed_copies,
+                config.sound_speed_range, config.seed,
+            )  # fmt: skip
         self.source = TripletSource(images, bank, train_rows, val_rows)
         self.replay = self._replay_source()
         self.model_config = dataclasses.replace(config.model, image_size=images.image_size)

@@ -199,6 +199,9 @@ def test_evaluation_plays_the_promised_episodes_per_intent(
     assert all(bank.intents[e.goal_clip] == e.intent for e in result.episodes)
     expected = [np.mean([e.success for e in result.episodes if e.intent == k]) for k in range(4)]
     assert result.success_by_intent == pytest.approx(expected)
+    assert [sum(row) for row in result.final_view_by_intent] == [3, 3, 3, 3]
+    # Kuka's "final" rule: success is being over the target block after the last step
+    assert all(e.success == (e.final_heard == e.intent) for e in result.episodes)
     assert Path(result.gif).stat().st_size > 0
 
     again = evaluate(net, var, bank, "kuka", IMAGE, episodes_per_intent=3, seed=7, num_envs=3, max_steps=4,

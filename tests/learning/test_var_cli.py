@@ -38,6 +38,8 @@ def test_collect_train_finetune_eval_and_plot_from_the_command_line(small_wordse
         "32",
         "--threads",
         "1",
+        "--speed-copies",
+        "1",
     )
     assert result.exit_code == 0, output
     checkpoint = tmp_path / "run" / "final.pt"
@@ -72,5 +74,7 @@ def test_bad_input_gets_a_clear_message_and_exit_code_2(small_wordset, tmp_path)
     assert result.exit_code == 2 and "Unknown world 'mars'" in output
     result, output = invoke("train", "no-such-dataset", "--sounds", "wordset")
     assert result.exit_code == 2 and "varbot var collect" in output
+    result, output = invoke("train", "cli-kuka", "--speed-copies", "2", "--speed-range", "fast")
+    assert result.exit_code == 2 and "--speed-range must be MIN,MAX" in output
     result, output = invoke("eval", str(tmp_path / "missing.pt"), "cli-kuka", "--sounds", "wordset")
     assert result.exit_code == 2 and "No VAR checkpoint" in output

@@ -1,5 +1,6 @@
 """VAR training end to end on real simulated views and a real (small) sound corpus: tiny images, seconds."""
 
+import dataclasses
 import json
 from pathlib import Path
 
@@ -10,8 +11,8 @@ import torch
 from learning.sounds import load_corpus
 from learning.sounds.build import build_corpora
 from learning.var.checkpoint import CheckpointMismatchError, load_var, read_checkpoint
-from learning.var.dataset import SoundBank, collect_dataset
-from learning.var.evaluate import embed_images, evaluate_var, triplet_accuracy
+from learning.var.dataset import SoundBank, collect_dataset, speed_perturbed_features
+from learning.var.evaluate import embed_images, evaluate_var, nearest_command_accuracy, triplet_accuracy
 from learning.var.finetune import finetune_config
 from learning.var.train import TrainConfig, train
 from sim.domain import DomainShift
@@ -189,3 +190,39 @@ def test_an_identical_collection_is_reused_and_a_different_one_refused(kuka_test
     np.testing.assert_array_equal(again.heard, kuka_test_views.heard)
     with pytest.raises(ValueError, match="--overwrite"):
         collect_dataset("kuka", 300, "test-var-kuka-test", seed=2, image_size=SIZE, workers=1, progress=False)
+
+
+def test_speed_copies_are_faster_and_slower_renderings_of_every_chosen_clip(wordset):
+    train = wordset.subset("train")
+    speaker = train.speaker[0]
+    chosen, others = train.by_speakers([speaker]), train.by_speakers([speaker], keep=False)
+    assert set(chosen.speaker) == {speaker} and speaker not in set(others.speaker) and len(others.speaker)
+    bank = SoundBank.from_corpus(wordset, ("train",), (speaker,))
+
+    def copies(speed: tuple[float, float], seed: int = 0) -> SoundBank:
+        return bank.with_speed_copies(wordset, ("train",), (speaker,), 2, speed, seed)
+
+    doubled = copies((0.85, 1.15))
+    assert len(doubled.features) == 3 * len(bank.features)
+    assert np.bincount(doubled.intent).tolist() == (3 * np.bincount(bank.intent)).tolist()
+    at_speed_1 = speed_perturbed_features(chosen.clip, wordset.kind, 2, (1.0, 1.0), seed=0)
+    assert np.allclose(at_speed_1, np.repeat(chosen.features, 2, axis=0), atol=1e-3)  # the clips themselves
+
+    def sounding_frames(features: np.ndarray) -> float:
+        return float((np.abs(features).sum(axis=2) > 0).sum(axis=1).mean())
+
+    faster, slower = copies((1.25, 1.25)), copies((0.8, 0.8))
+    extra = slice(len(bank.features), None)
+    assert sounding_frames(faster.features[extra]) < sounding_frames(bank.features)
+    assert sounding_frames(slower.features[extra]) > sounding_frames(bank.features)
+    assert np.array_equal(copies((0.85, 1.15), seed=3).features, copies((0.85, 1.15), seed=3).features)
+
+
+def test_nearest_command_accuracy_is_far_above_chance_for_the_training_clips(pretrained, wordset):
+    var = load_var(pretrained.checkpoint)
+    train = wordset.subset("train")
+    accuracy, hits = nearest_command_accuracy(var, train, train, len(wordset.intent_names))
+    assert hits.shape == (len(train.intent),) and accuracy == pytest.approx(hits.mean())
+    assert accuracy > 0.6, accuracy  # chance: 0.25
+    shuffled = dataclasses.replace(train, intent=np.random.default_rng(0).permutation(train.intent))
+    assert nearest_command_accuracy(var, train, shuffled, len(wordset.intent_names))[0] < 0.45
