@@ -298,7 +298,13 @@ class SoundBank:
         seed: int,
     ) -> "SoundBank":
         """This bank plus `copies` re-renderings of each chosen clip played faster or slower (tempo, pitch and
-        formants together, as a longer or shorter vocal tract would), for voices training never heard."""
+        formants together, as a longer or shorter vocal tract would), for voices training never heard.
+        Only for speech: a sound set whose commands are pitches (notes) would have its labels changed."""
+        if corpus.kind not in ("speech", "phrase"):
+            raise DatasetError(
+                f"Speed copies change pitch, and {corpus.name} is a '{corpus.kind}' set whose commands may "
+                "be pitches: train it without --speed-copies."
+            )
         chosen = corpus.subset(list(splits))
         mask = np.isin(chosen.speaker, list(speakers)) if speakers else np.ones(len(chosen.intent), bool)
         extra = speed_perturbed_features(chosen.clip[mask], corpus.kind, copies, speed, seed)

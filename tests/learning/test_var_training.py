@@ -11,7 +11,7 @@ import torch
 from learning.sounds import load_corpus
 from learning.sounds.build import build_corpora
 from learning.var.checkpoint import CheckpointMismatchError, load_var, read_checkpoint
-from learning.var.dataset import SoundBank, collect_dataset, speed_perturbed_features
+from learning.var.dataset import DatasetError, SoundBank, collect_dataset, speed_perturbed_features
 from learning.var.evaluate import embed_images, evaluate_var, nearest_command_accuracy, triplet_accuracy
 from learning.var.finetune import finetune_config
 from learning.var.train import TrainConfig, train
@@ -216,6 +216,9 @@ def test_speed_copies_are_faster_and_slower_renderings_of_every_chosen_clip(word
     assert sounding_frames(faster.features[extra]) < sounding_frames(bank.features)
     assert sounding_frames(slower.features[extra]) > sounding_frames(bank.features)
     assert np.array_equal(copies((0.85, 1.15), seed=3).features, copies((0.85, 1.15), seed=3).features)
+    as_notes = dataclasses.replace(wordset, kind="sound")  # a set like notes, where pitch is the command
+    with pytest.raises(DatasetError, match="without --speed-copies"):
+        bank.with_speed_copies(as_notes, ("train",), (speaker,), 2, (0.85, 1.15), 0)
 
 
 def test_nearest_command_accuracy_is_far_above_chance_for_the_training_clips(pretrained, wordset):
