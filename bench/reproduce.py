@@ -16,9 +16,12 @@ intrinsic for VAR) is furthest below the best target's. --target-intents 0 train
 diagnostic that showed "zero" alone is learnable; such runs go under "diagnostics", not into the table.
 
 `bench/results/reproduce.json` keeps one record per row: status (complete / partial), env steps, wall time,
-steps/s, labels used (counted as the paper does), success per unheard tier and per intent, peak memory, the
-curve PNG. Success-vs-steps curves: `bench/results/reproduce_<world>-<sounds>.png`. Never tuned on test
-voices: evaluation only reads the unheard tiers, training only the train split.
+steps/s, labels used (counted as the paper does), success per unheard tier and per intent, where each
+evaluation episode ended (which object, or none), peak memory, the curve PNG; for VAR rows also the share of
+each tier's clips the VAR embeds nearest their own command and the success split by that (misread goal clips
+against ones the policy failed to reach). A row run again under an earlier tag becomes the row's record again.
+Success-vs-steps curves: `bench/results/reproduce_<world>-<sounds>.png`. Never tuned on test voices:
+evaluation only reads the unheard tiers, training only the train split.
 """
 
 import argparse
@@ -237,6 +240,8 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         result = evaluate(policy, var, goals, world, config.image_size, split=split,
                           episodes_per_intent=args.episodes_per_intent, seed=2023)  # fmt: skip
         evaluations[split] = result.to_dict()
+        if var is not None:
+            evaluations[split]["by_goal_understanding"] = success_by_understanding(var, corpus, split, result)
     plot_run(run_dir)
     return {
         "row": row,
@@ -274,6 +279,26 @@ def goal_understanding(var, corpus) -> dict[str, float]:
         split: nearest_command_accuracy(var, train, corpus.subset(split), num_intents)[0]
         for split in corpus.splits
         if split != "train"
+    }
+
+
+def success_by_understanding(var, corpus, split: str, result) -> dict[str, float | int | None]:
+    """Success on the episodes whose goal clip the VAR embeds nearest its own command, and on the others:
+    separates what the sound encoder misreads from what the policy fails to reach."""
+    import numpy as np
+
+    from learning.var.evaluate import nearest_command_accuracy
+
+    _, hits = nearest_command_accuracy(
+        var, corpus.subset("train"), corpus.subset(split), len(corpus.intent_names)
+    )
+    understood = np.array([hits[e.goal_clip] for e in result.episodes])
+    success = np.array([e.success for e in result.episodes])
+    return {
+        "episodes_understood": int(understood.sum()),
+        "success_understood": float(success[understood].mean()) if understood.any() else None,
+        "episodes_misunderstood": int((~understood).sum()),
+        "success_misunderstood": float(success[~understood].mean()) if (~understood).any() else None,
     }
 
 
@@ -335,6 +360,7 @@ def main() -> None:
             )
     results = load_results()
     for key in keys:
+        row, _, method = key.partition(":")
         store, entry = record_slot(results, key, args)
         done = store.get(entry, {})
         if args.resume and done.get("status") == "complete" and done.get("tag") == args.tag:
@@ -342,7 +368,13 @@ def main() -> None:
             continue
         if done.get("tag", args.tag) != args.tag and "success" in done:
             results.setdefault("earlier_runs", []).append(done)  # kept for comparison, not replaced
-            save_results(results)
+        if not args.target_intents:  # a run taken up again is the row's record now, not an earlier one
+            results["earlier_runs"] = [
+                r
+                for r in results.get("earlier_runs", [])
+                if (r.get("row"), r.get("method"), r.get("tag")) != (row, method, args.tag)
+            ]
+        save_results(results)
         store[entry] = run_row(key, args, results)
         curves(results)
         save_results(results)
