@@ -232,7 +232,9 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     complete = summary["env_steps"] >= config.num_updates * config.batch_size
     policy, payload = load_policy(run_dir / "checkpoint.pt")
     var = load_frozen_var(var_path)
-    evaluations, corpus = {}, load_corpus(sounds)
+    corpus = load_corpus(sounds)
+    understood = goal_clips_understood(var, corpus) if var is not None else None
+    evaluations = {}
     for split in [s for s in corpus.splits if s != "train"]:
         goals = corpus_bank(sounds, split)
         if var is not None:
@@ -240,8 +242,8 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         result = evaluate(policy, var, goals, world, config.image_size, split=split,
                           episodes_per_intent=args.episodes_per_intent, seed=2023)  # fmt: skip
         evaluations[split] = result.to_dict()
-        if var is not None:
-            evaluations[split]["by_goal_understanding"] = success_by_understanding(var, corpus, split, result)
+        if understood is not None:
+            evaluations[split]["by_goal_understanding"] = success_by_understanding(understood[split], result)
     plot_run(run_dir)
     return {
         "row": row,
@@ -260,7 +262,9 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         "training_recent_success": summary["recent_success"],
         "success": {split: e["success_rate"] for split, e in evaluations.items()},
         "evaluation": evaluations,
-        "var_nearest_command": None if var is None else goal_understanding(var, corpus),
+        "var_nearest_command": None
+        if understood is None
+        else {t: float(h.mean()) for t, h in understood.items()},
         "paper_success": PAPER[row].get(method.replace("-current-sound", "")),
         "var_checkpoint": None if var_path is None else str(var_path),
         "run_dir": str(run_dir),
@@ -269,30 +273,26 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     }
 
 
-def goal_understanding(var, corpus) -> dict[str, float]:
-    """Per unheard tier, the share of goal clips the VAR embeds nearest their own command (centroids of the
-    training clips): an upper bound on success, since the policy heads for the command the clip embeds as."""
+def goal_clips_understood(var, corpus) -> dict:
+    """Per unheard tier, which goal clips the VAR embeds nearest their own command (centroids of the training
+    clips), in the order `corpus_bank` gives them. Their share bounds success: the policy heads for the
+    command a clip embeds as."""
     from learning.var.evaluate import nearest_command_accuracy
 
     train, num_intents = corpus.subset("train"), len(corpus.intent_names)
     return {
-        split: nearest_command_accuracy(var, train, corpus.subset(split), num_intents)[0]
+        split: nearest_command_accuracy(var, train, corpus.subset(split), num_intents)[1]
         for split in corpus.splits
         if split != "train"
     }
 
 
-def success_by_understanding(var, corpus, split: str, result) -> dict[str, float | int | None]:
-    """Success on the episodes whose goal clip the VAR embeds nearest its own command, and on the others:
-    separates what the sound encoder misreads from what the policy fails to reach."""
+def success_by_understanding(understood_clips, result) -> dict[str, float | int | None]:
+    """Success on the episodes whose goal clip the VAR understands, and on the others: separates what the
+    sound encoder misreads from what the policy fails to reach."""
     import numpy as np
 
-    from learning.var.evaluate import nearest_command_accuracy
-
-    _, hits = nearest_command_accuracy(
-        var, corpus.subset("train"), corpus.subset(split), len(corpus.intent_names)
-    )
-    understood = np.array([hits[e.goal_clip] for e in result.episodes])
+    understood = np.array([understood_clips[e.goal_clip] for e in result.episodes])
     success = np.array([e.success for e in result.episodes])
     return {
         "episodes_understood": int(understood.sum()),

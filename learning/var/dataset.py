@@ -279,38 +279,29 @@ class SoundBank:
         corpus: Any,
         splits: str | list[str] | tuple[str, ...] = ("train",),
         speakers: list[str] | tuple[str, ...] | None = None,
+        speed_copies: int = 0,
+        speed_range: tuple[float, float] = (0.85, 1.15),
+        seed: int = 0,
     ) -> "SoundBank":
+        """The clips of these splits (and speakers), plus `speed_copies` re-renderings of each, played faster
+        or slower (tempo, pitch and formants together, as a longer or shorter vocal tract would), for voices
+        training never heard. Copies are refused for sets whose commands may be pitches (notes)."""
         chosen = corpus.subset(list(splits) if not isinstance(splits, str) else splits)
-        mask = np.ones(len(chosen.intent), dtype=bool)
         if speakers:
-            mask = np.isin(chosen.speaker, list(speakers))
-            if not mask.any():
+            chosen = chosen.by_speakers(speakers)
+            if not len(chosen.intent):
                 raise DatasetError(f"No clip by speaker(s) {list(speakers)} in splits {splits}.")
-        return cls.build(chosen.features[mask], chosen.intent[mask], len(corpus.intent_names))
-
-    def with_speed_copies(
-        self,
-        corpus: Any,
-        splits: tuple[str, ...],
-        speakers: tuple[str, ...] | None,
-        copies: int,
-        speed: tuple[float, float],
-        seed: int,
-    ) -> "SoundBank":
-        """This bank plus `copies` re-renderings of each chosen clip played faster or slower (tempo, pitch and
-        formants together, as a longer or shorter vocal tract would), for voices training never heard.
-        Only for speech: a sound set whose commands are pitches (notes) would have its labels changed."""
-        if corpus.kind not in ("speech", "phrase"):
-            raise DatasetError(
-                f"Speed copies change pitch, and {corpus.name} is a '{corpus.kind}' set whose commands may "
-                "be pitches: train it without --speed-copies."
-            )
-        chosen = corpus.subset(list(splits))
-        mask = np.isin(chosen.speaker, list(speakers)) if speakers else np.ones(len(chosen.intent), bool)
-        extra = speed_perturbed_features(chosen.clip[mask], corpus.kind, copies, speed, seed)
-        features = np.concatenate([self.features, extra])
-        intent = np.concatenate([self.intent, np.repeat(chosen.intent[mask], copies)])
-        return SoundBank.build(features, intent, self.num_intents)  # fmt: skip
+        features, intent = chosen.features, chosen.intent
+        if speed_copies:
+            if corpus.kind not in ("speech", "phrase"):
+                raise DatasetError(
+                    f"Speed copies change pitch, and {corpus.name} is a '{corpus.kind}' set whose commands "
+                    "may be pitches: train it without --speed-copies."
+                )
+            copies = speed_perturbed_features(chosen.clip, corpus.kind, speed_copies, speed_range, seed)
+            features = np.concatenate([features, copies])
+            intent = np.concatenate([intent, np.repeat(chosen.intent, speed_copies)])
+        return cls.build(features, intent, len(corpus.intent_names))
 
     @property
     def num_intents(self) -> int:

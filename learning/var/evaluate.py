@@ -48,8 +48,7 @@ def command_similarities(var: VAR, known: Any, unknown: Any, num_intents: int) -
     """(clips of `unknown`, intents): cosine of each clip's embedding to the mean direction of each command
     among the `known` clips. `known` and `unknown` have `features` and `intent` (corpus subsets)."""
     centroids = _centroids(embed_sounds(var, known.features), known.intent, num_intents)
-    embeddings = embed_sounds(var, unknown.features)
-    return embeddings / np.linalg.norm(embeddings, axis=1, keepdims=True).clip(min=1e-9) @ centroids.T
+    return embed_sounds(var, unknown.features) @ centroids.T  # the VAR's embeddings are unit vectors
 
 
 def nearest_command_accuracy(

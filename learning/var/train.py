@@ -158,12 +158,10 @@ class _Trainer:
         corpus = _load_corpus(config.sounds)
         self.corpus_hash = corpus.manifest_hash
         train_rows, val_rows = _split_rows(len(images), config.val_fraction, config.seed)
-        bank = SoundBank.from_corpus(corpus, config.sound_splits, config.sound_speakers)
-        if config.sound_speed_copies:
-            bank = bank.with_speed_copies(
-                corpus, config.sound_splits, config.sound_speakers, config.sound_speed_copies,
-                config.sound_speed_range, config.seed,
-            )  # fmt: skip
+        bank = SoundBank.from_corpus(
+            corpus, config.sound_splits, config.sound_speakers, config.sound_speed_copies,
+            config.sound_speed_range, config.seed,
+        )  # fmt: skip
         self.source = TripletSource(images, bank, train_rows, val_rows)
         self.replay = self._replay_source()
         self.model_config = dataclasses.replace(config.model, image_size=images.image_size)
