@@ -185,7 +185,7 @@ def save_results(results: dict) -> None:
 def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     from learning.rl.baselines import method_config, needs_var
     from learning.rl.evaluate import evaluate
-    from learning.rl.plots import plot_run, read_metrics
+    from learning.rl.plots import plot_run, read_metrics, success_curve
     from learning.rl.ppo import load_policy
     from learning.rl.rewards import corpus_bank
     from learning.rl.run import load_frozen_var, train_run
@@ -269,6 +269,7 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         "var_checkpoint": None if var_path is None else str(var_path),
         "run_dir": str(run_dir),
         "curves": str(run_dir / "curves.png"),
+        "success_curve": success_curve(run_dir),
         "config": payload["config"],
     }
 
@@ -318,17 +319,23 @@ def record_slot(results: dict, key: str, args: argparse.Namespace) -> tuple[dict
 
 
 def curves(results: dict) -> None:
-    from learning.rl.plots import plot_success_curves
+    """One success-vs-steps figure per row, over all its runs, drawn from the curves stored in the results (so
+    a new machine redraws them without the old run directories); a run whose curve is missing gets it from
+    its run directory when that is here."""
+    from learning.rl.plots import plot_success_curves, success_curve
 
-    by_row: dict[str, dict[str, Path]] = {}
+    by_row: dict[str, dict] = {}
     for record in [*results.get("earlier_runs", []), *results["rows"].values()]:
-        if "run_dir" in record and Path(record["run_dir"], "metrics.jsonl").exists():
-            by_row.setdefault(record["row"], {})[f"{record['method']} ({record['tag']})"] = Path(
-                record["run_dir"]
-            )
-    for row, runs in by_row.items():
+        if "success_curve" not in record and Path(record.get("run_dir", ""), "metrics.jsonl").is_file():
+            record["success_curve"] = success_curve(Path(record["run_dir"]))
+        label = f"{record.get('method')} ({record.get('tag')})"
+        if "success_curve" in record:
+            by_row.setdefault(record["row"], {})[label] = record["success_curve"]
+        elif "success" in record:
+            print(f"{record['row']} {label}: no training curve stored or here, so not in the figure")
+    for row, row_curves in by_row.items():
         path = plot_success_curves(
-            runs, RESULTS / f"reproduce_{row}.png", title=f"{row}: success vs env steps"
+            row_curves, RESULTS / f"reproduce_{row}.png", title=f"{row}: success vs env steps"
         )
         results.setdefault("curves", {})[row] = str(path)
 
@@ -376,8 +383,9 @@ def main() -> None:
             ]
         save_results(results)
         store[entry] = run_row(key, args, results)
-        curves(results)
         save_results(results)
+    curves(results)
+    save_results(results)
     print_table(results)
 
 

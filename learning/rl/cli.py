@@ -208,7 +208,7 @@ def plot(
     out: Annotated[Path | None, typer.Option(help="Comparison PNG (several runs).")] = None,
 ) -> None:
     """Curves of a run (curves.png in its directory); with several runs also success-vs-steps on one axis."""
-    from learning.rl.plots import plot_run, plot_success_curves
+    from learning.rl.plots import plot_run, plot_success_curves, success_curve
 
     for run_dir in run_dirs:
         try:
@@ -217,7 +217,7 @@ def plot(
             _fail(str(error))
     if len(run_dirs) > 1 or out is not None:
         target = out or Path("success_vs_steps.png")
-        typer.echo(f"wrote {plot_success_curves({d.name: d for d in run_dirs}, target)}")
+        typer.echo(f"wrote {plot_success_curves({d.name: success_curve(d) for d in run_dirs}, target)}")
 
 
 def _var_image_size(path: Path) -> int:

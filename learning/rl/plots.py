@@ -1,6 +1,7 @@
 """Training curves as PNG: one run's dashboard, and success-vs-steps for several runs on one axis."""
 
 import json
+import math
 from pathlib import Path
 
 import matplotlib
@@ -11,6 +12,8 @@ import numpy as np
 from matplotlib.ticker import FuncFormatter
 
 THOUSANDS = FuncFormatter(lambda value, _: f"{value / 1000:.0f}k")  # env steps: 800k, not 800000
+
+SuccessCurve = list[tuple[int, float]]  # (env steps, recent success rate) after each kept update
 
 
 def read_metrics(run_dir: Path) -> list[dict]:
@@ -87,15 +90,24 @@ def _plot_target_weights(ax: plt.Axes, steps: np.ndarray, records: list[dict]) -
     ax.set_ylim(0, 1)
 
 
-def plot_success_curves(runs: dict[str, Path], out: Path, title: str = "success rate vs env steps") -> Path:
-    """One line per run (label → run directory): recent success rate against env steps."""
+def success_curve(run_dir: Path, max_points: int = 400) -> SuccessCurve:
+    """A run's recent success rate against env steps, thinned to at most `max_points` evenly spaced updates
+    (the last one always kept): small enough to store beside the run's results."""
+    records = read_metrics(run_dir)
+    stride = max(1, math.ceil(len(records) / max_points))
+    kept = records[::stride]
+    if records and kept[-1] is not records[-1]:
+        kept[-1] = records[-1]
+    return [(int(r["global_step"]), float(r["recent_success"])) for r in kept]
+
+
+def plot_success_curves(
+    curves: dict[str, SuccessCurve], out: Path, title: str = "success rate vs env steps"
+) -> Path:
+    """One line per run (label → its success curve): recent success rate against env steps."""
     fig, ax = plt.subplots(figsize=(7, 4.5))
-    for label, run_dir in runs.items():
-        try:
-            records = read_metrics(run_dir)
-        except FileNotFoundError:
-            continue
-        ax.plot([r["global_step"] for r in records], [r["recent_success"] for r in records], label=label)
+    for label, curve in curves.items():
+        ax.plot([step for step, _ in curve], [success for _, success in curve], label=label)
     ax.set_xlabel("env steps")
     ax.xaxis.set_major_formatter(THOUSANDS)
     ax.set_ylabel("success rate (last 100 training episodes)")
