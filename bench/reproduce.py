@@ -185,7 +185,7 @@ def save_results(results: dict) -> None:
 def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     from learning.rl.baselines import method_config, needs_var
     from learning.rl.evaluate import evaluate
-    from learning.rl.plots import plot_run, read_metrics, success_curve
+    from learning.rl.plots import plot_run, read_metrics
     from learning.rl.ppo import load_policy
     from learning.rl.rewards import corpus_bank
     from learning.rl.run import load_frozen_var, train_run
@@ -269,7 +269,6 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         "var_checkpoint": None if var_path is None else str(var_path),
         "run_dir": str(run_dir),
         "curves": str(run_dir / "curves.png"),
-        "success_curve": success_curve(run_dir),
         "config": payload["config"],
     }
 
@@ -320,8 +319,8 @@ def record_slot(results: dict, key: str, args: argparse.Namespace) -> tuple[dict
 
 def curves(results: dict) -> None:
     """One success-vs-steps figure per row, over all its runs, drawn from the curves stored in the results (so
-    a new machine redraws them without the old run directories); a run whose curve is missing gets it from
-    its run directory when that is here."""
+    a new machine redraws them without the old run directories). The one place a run's curve is stored: read
+    from its run directory the first time, while that is here."""
     from learning.rl.plots import plot_success_curves, success_curve
 
     by_row: dict[str, dict] = {}
