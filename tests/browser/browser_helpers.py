@@ -22,6 +22,7 @@ import httpx
 import numpy as np
 import pytest
 import soundfile
+from playwright.sync_api import expect
 
 REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO / "tests" / "artifacts"
@@ -318,6 +319,13 @@ def sign_in(page: object, url: str, username: str = "alice") -> None:
     page.get_by_label("Password").fill(PASSWORD)  # type: ignore[attr-defined]
     page.get_by_role("button", name="Sign in").click()  # type: ignore[attr-defined]
     page.wait_for_url(f"{url}/record")  # type: ignore[attr-defined]
+
+
+def focus_talk_button(page: object) -> None:
+    """Focuses "Hold to talk" once the record page has enabled it, that is, once its key handlers exist."""
+    talk = page.get_by_role("button", name="Hold to talk")  # type: ignore[attr-defined]
+    expect(talk).to_be_enabled()
+    talk.focus()
 
 
 @pytest.fixture

@@ -12,6 +12,7 @@ from browser_helpers import (
     PASSWORD,
     ConsoleWatch,
     Stack,
+    focus_talk_button,
     launch,
     screenshot,
     sign_in,
@@ -50,8 +51,7 @@ def test_sign_in_explains_a_wrong_password_then_opens_the_record_page(browser, s
 def test_recording_with_the_microphone_keeps_a_clip_that_plays(page, stack: Stack) -> None:
     before = stack.count("clips")
     page.get_by_label("What you say").fill("zero")
-    talk = page.get_by_role("button", name="Hold to talk")
-    talk.focus()
+    focus_talk_button(page)
     page.keyboard.down("Space")
     page.get_by_text("Recording…", exact=True).wait_for()
     levels = []
@@ -114,7 +114,7 @@ def test_a_silent_microphone_and_a_refused_microphone_each_get_a_way_forward(
                     {"permission": {"name": "microphone"}, "setting": "denied", "origin": stack.url},
                 )
             sign_in(page, stack.url)
-            page.get_by_role("button", name="Hold to talk").focus()
+            focus_talk_button(page)
             page.keyboard.down("Space")
             if name == "silent":
                 page.get_by_text("Recording…", exact=True).wait_for()  # the microphone is open

@@ -175,6 +175,7 @@ async function main() {
     if (file) await keep(file, file.name);
     event.target.value = "";
   });
+  talk.disabled = false; // disabled in the HTML so that no press is lost before the handlers exist
   await listClips();
 }
 
