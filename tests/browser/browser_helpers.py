@@ -324,7 +324,7 @@ def sign_in(page: object, url: str, username: str = "alice") -> None:
 def focus_talk_button(page: object) -> None:
     """Focuses "Hold to talk" once the record page has enabled it, that is, once its key handlers exist."""
     talk = page.get_by_role("button", name="Hold to talk")  # type: ignore[attr-defined]
-    expect(talk).to_be_enabled()
+    expect(talk).to_be_enabled(timeout=30_000)  # the default 5 s is short on a loaded machine
     talk.focus()
 
 
