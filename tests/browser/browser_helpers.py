@@ -22,7 +22,6 @@ import httpx
 import numpy as np
 import pytest
 import soundfile
-from playwright.sync_api import expect
 
 REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO / "tests" / "artifacts"
@@ -319,13 +318,19 @@ def sign_in(page: object, url: str, username: str = "alice") -> None:
     page.get_by_label("Password").fill(PASSWORD)  # type: ignore[attr-defined]
     page.get_by_role("button", name="Sign in").click()  # type: ignore[attr-defined]
     page.wait_for_url(f"{url}/record")  # type: ignore[attr-defined]
+    wait_until_ready(page)
 
 
-def focus_talk_button(page: object) -> None:
-    """Focuses "Hold to talk" once the record page has enabled it, that is, once its key handlers exist."""
-    talk = page.get_by_role("button", name="Hold to talk")  # type: ignore[attr-defined]
-    expect(talk).to_be_enabled(timeout=30_000)  # the default 5 s is short on a loaded machine
-    talk.focus()
+def open_page(page: object, url: str) -> None:
+    """Goes to one of the app's pages and waits until it is ready for clicks and keys."""
+    page.goto(url)  # type: ignore[attr-defined]
+    wait_until_ready(page)
+
+
+def wait_until_ready(page: object) -> None:
+    """The page sets body[data-ready] once every control's handler is attached (shell.js pageReady);
+    a click or key press before that would be lost. Loaded machines need more than Playwright's 5 s."""
+    page.locator("body[data-ready=true]").wait_for(state="attached", timeout=30_000)  # type: ignore[attr-defined]
 
 
 @pytest.fixture

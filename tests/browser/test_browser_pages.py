@@ -12,8 +12,8 @@ from browser_helpers import (
     PASSWORD,
     ConsoleWatch,
     Stack,
-    focus_talk_button,
     launch,
+    open_page,
     screenshot,
     sign_in,
     silent_wav,
@@ -21,6 +21,7 @@ from browser_helpers import (
     upload_clip,
     upload_views,
     wait_until,
+    wait_until_ready,
 )
 
 pytestmark = pytest.mark.browser
@@ -51,7 +52,7 @@ def test_sign_in_explains_a_wrong_password_then_opens_the_record_page(browser, s
 def test_recording_with_the_microphone_keeps_a_clip_that_plays(page, stack: Stack) -> None:
     before = stack.count("clips")
     page.get_by_label("What you say").fill("zero")
-    focus_talk_button(page)
+    page.get_by_role("button", name="Hold to talk").focus()
     page.keyboard.down("Space")
     page.get_by_text("Recording…", exact=True).wait_for()
     levels = []
@@ -90,6 +91,21 @@ def test_a_server_rejection_is_shown_in_plain_words(page, console: ConsoleWatch,
     assert "0.3" in message.inner_text()  # the server's own reason: shorter than 0.3 s
 
 
+def test_the_record_controls_stay_disabled_until_the_page_can_handle_them(page, stack: Stack) -> None:
+    held: list = []
+    page.route("**/auth/me", lambda route: held.append(route))  # hold back who is signed in
+    page.goto(f"{stack.url}/record")
+    while not held:
+        page.wait_for_timeout(50)
+    talk = page.get_by_role("button", name="Hold to talk")
+    assert talk.is_disabled() and page.locator("#file").is_disabled()
+    assert page.locator("body[data-ready]").count() == 0
+    held[0].continue_()
+    page.unroute("**/auth/me")
+    wait_until_ready(page)
+    assert talk.is_enabled() and page.locator("#file").is_enabled()
+
+
 def test_a_silent_microphone_and_a_refused_microphone_each_get_a_way_forward(
     playwright_session, stack: Stack, tmp_path: Path
 ) -> None:
@@ -114,7 +130,7 @@ def test_a_silent_microphone_and_a_refused_microphone_each_get_a_way_forward(
                     {"permission": {"name": "microphone"}, "setting": "denied", "origin": stack.url},
                 )
             sign_in(page, stack.url)
-            focus_talk_button(page)
+            page.get_by_role("button", name="Hold to talk").focus()
             page.keyboard.down("Space")
             if name == "silent":
                 page.get_by_text("Recording…", exact=True).wait_for()  # the microphone is open
@@ -135,7 +151,7 @@ def test_labelling_ten_pairs_by_keyboard_and_undoing_one_leaves_nine_labels(
         upload_views(alice, robot_id, 12, seed=3)
         upload_clip(alice, tone_wav(tmp_path / "c.wav").read_bytes(), "the block")
     labels_before = stack.count("labels")
-    page.goto(f"{stack.url}/label")
+    open_page(page, f"{stack.url}/label")
     camera = page.locator("#camera")
     camera.wait_for()
     wait_until(lambda: camera.evaluate("img => img.complete && img.naturalWidth > 0"), 10, "the camera image")
@@ -165,7 +181,7 @@ def test_the_label_page_offers_more_views_when_every_pair_is_answered(
     with stack.client() as alice:
         lonely = alice.post("/robots", json={"name": "empty corner", "kind": "turtlebot-sim"}).json()
     page.evaluate(f"localStorage.setItem('varbot.robot', '{lonely['id']}')")
-    page.goto(f"{stack.url}/label")
+    open_page(page, f"{stack.url}/label")
     page.get_by_role("button", name="Capture more views").wait_for()
     page.get_by_text("Every pair is answered").wait_for()
     screenshot(page, "label-queue-dry")
@@ -173,7 +189,7 @@ def test_the_label_page_offers_more_views_when_every_pair_is_answered(
 
 
 def test_an_admin_invites_a_member_and_changes_roles(page, stack: Stack) -> None:
-    page.goto(f"{stack.url}/household")
+    open_page(page, f"{stack.url}/household")
     page.get_by_label("Name", exact=True).fill("Carol")
     page.get_by_label("Username").fill("carol")
     page.get_by_label("First password").fill("carol's first password")
@@ -215,9 +231,9 @@ def test_a_queued_run_is_cancelled_from_admin_and_progress_follows_live(
         robot = alice.post("/robots", json={"name": "bench arm", "kind": "kinova-sim"}).json()["id"]
     _label_for_triplets(stack, robot, tmp_path, 22)
     progress = page.context.new_page()
-    progress.goto(f"{stack.url}/progress")
+    open_page(progress, f"{stack.url}/progress")
     progress.get_by_text("Live: updates appear").wait_for()
-    page.goto(f"{stack.url}/admin")
+    open_page(page, f"{stack.url}/admin")
     page.get_by_label("Robot", exact=True).select_option(str(robot))
     page.get_by_label("What to do").select_option("var_finetune")
     page.get_by_label(re.compile("^quick")).check()
@@ -260,7 +276,7 @@ def test_a_quick_run_started_by_an_admin_moves_the_progress_bar_to_done(
         ],
     )
     try:
-        page.goto(f"{stack.url}/admin")
+        open_page(page, f"{stack.url}/admin")
         page.get_by_label("Robot", exact=True).select_option(str(robot))
         page.get_by_label("What to do").select_option("finetune")
         page.get_by_label(re.compile("^quick")).check()
@@ -268,7 +284,7 @@ def test_a_quick_run_started_by_an_admin_moves_the_progress_bar_to_done(
         started = page.get_by_text(re.compile(r"Run (\d+) is queued"))
         started.wait_for()
         run_id = int(re.search(r"Run (\d+)", started.inner_text()).group(1))  # type: ignore[union-attr]
-        page.goto(f"{stack.url}/progress")
+        open_page(page, f"{stack.url}/progress")
         bar = page.locator(f"[data-run-id='{run_id}'] progress")
         seen: set[float] = set()
         stages: set[str] = set()
@@ -305,7 +321,7 @@ def test_a_quick_run_started_by_an_admin_moves_the_progress_bar_to_done(
 def test_every_control_is_labelled_and_reachable_by_keyboard(page, stack: Stack) -> None:
     problems: list[str] = []
     for name in PAGES:
-        page.goto(f"{stack.url}/{name}")
+        open_page(page, f"{stack.url}/{name}")
         page.wait_for_load_state("networkidle")
         unlabelled = page.evaluate(
             """() => [...document.querySelectorAll('button, input, select, a[href], audio[controls]')]
@@ -345,7 +361,7 @@ def test_pages_fit_a_phone_screen(browser, stack: Stack) -> None:
     page = context.new_page()
     sign_in(page, stack.url)
     for name in ("record", "label"):
-        page.goto(f"{stack.url}/{name}")
+        open_page(page, f"{stack.url}/{name}")
         page.wait_for_load_state("networkidle")
         overflow = page.evaluate(
             "document.documentElement.scrollWidth - document.documentElement.clientWidth"

@@ -53,6 +53,11 @@ function drawHeader(active, me, household) {
 }
 
 /** Shows a message in an aria-live region: kind is "", "ok", "warn" or "error". */
+/** Marks the page as ready: every control's handler is attached, so no click or key press is lost. */
+export function pageReady() {
+  document.body.dataset.ready = "true";
+}
+
 export function say(element, text, kind = "") {
   element.className = `message ${kind}`.trim();
   element.textContent = text;

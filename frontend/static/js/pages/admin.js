@@ -1,5 +1,5 @@
 import { api } from "../api.js";
-import { element, robotPicker, say, startPage, when } from "../shell.js";
+import { element, pageReady, robotPicker, say, startPage, when } from "../shell.js";
 
 const $ = (id) => document.getElementById(id);
 let picker;
@@ -123,6 +123,7 @@ async function main() {
     if (robot) modelAction(`/robots/${robot.id}/models:rollback`, "Rolled back: the previous version is active again.");
   });
   $("refresh-health").addEventListener("click", drawHealth);
+  pageReady();
   await Promise.all([drawPresets(), drawActiveRuns(), drawHealth(), drawRobots(), drawModels()]);
   setInterval(drawActiveRuns, 5000);
 }

@@ -1,5 +1,5 @@
 import { api } from "../api.js";
-import { element, say, startPage } from "../shell.js";
+import { element, pageReady, say, startPage } from "../shell.js";
 
 const $ = (id) => document.getElementById(id);
 let me;
@@ -49,6 +49,7 @@ async function main() {
       say($("invite-message"), error.message, "error");
     }
   });
+  pageReady();
   await listMembers();
 }
 

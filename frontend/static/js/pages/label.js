@@ -1,5 +1,5 @@
 import { api } from "../api.js";
-import { robotPicker, say, startPage } from "../shell.js";
+import { pageReady, robotPicker, say, startPage } from "../shell.js";
 
 const $ = (id) => document.getElementById(id);
 const message = $("label-message");
@@ -182,6 +182,7 @@ async function main() {
     if (event.key.toLowerCase() === "r") play();
     else enqueue(action);
   });
+  pageReady();
   await advance();
 }
 

@@ -1,6 +1,6 @@
 import { api } from "../api.js";
 import { beforeAfterChart, lineChart } from "../chart.js";
-import { element, startPage, when } from "../shell.js";
+import { element, pageReady, startPage, when } from "../shell.js";
 
 const runs = new Map(); // id → latest RunPublic
 const live = new Map(); // id → {metric: [[seconds, value], …]} collected from the stream
@@ -157,6 +157,7 @@ async function main() {
   document.getElementById("no-runs").hidden = initial.length > 0;
   for (const run of initial.reverse()) update(run);
   connect();
+  pageReady();
 }
 
 main().catch((error) => console.warn(error));

@@ -1,6 +1,6 @@
 import { api, uploadWithProgress } from "../api.js";
 import { Recorder } from "../recorder.js";
-import { element, say, startPage, when } from "../shell.js";
+import { element, pageReady, say, startPage, when } from "../shell.js";
 
 const MIN_SECONDS = 0.3;
 const MAX_SECONDS = 10;
@@ -175,7 +175,8 @@ async function main() {
     if (file) await keep(file, file.name);
     event.target.value = "";
   });
-  talk.disabled = false; // disabled in the HTML so that no press is lost before the handlers exist
+  talk.disabled = $("file").disabled = false; // disabled in the HTML until their handlers exist
+  pageReady();
   await listClips();
 }
 

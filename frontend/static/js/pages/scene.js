@@ -1,9 +1,10 @@
-import { say, startPage } from "../shell.js";
+import { pageReady, say, startPage } from "../shell.js";
 
 const SCENE_URL = "/scene/viser/";
 
 async function main() {
   await startPage("scene");
+  pageReady(); // the scene page has no controls of its own
   const message = document.getElementById("scene-message");
   const response = await fetch("/scene/status", { credentials: "same-origin" });
   if (response.status === 401) return location.assign("/login?next=/scene");
