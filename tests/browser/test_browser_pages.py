@@ -95,8 +95,11 @@ def test_the_record_controls_stay_disabled_until_the_page_can_handle_them(page, 
     held: list = []
     page.route("**/auth/me", lambda route: held.append(route))  # hold back who is signed in
     page.goto(f"{stack.url}/record")
-    while not held:
+    for _ in range(200):  # Playwright hands over the held request only while it is called
+        if held:
+            break
         page.wait_for_timeout(50)
+    assert held, "the record page never asked who is signed in"
     talk = page.get_by_role("button", name="Hold to talk")
     assert talk.is_disabled() and page.locator("#file").is_disabled()
     assert page.locator("body[data-ready]").count() == 0

@@ -52,12 +52,12 @@ function drawHeader(active, me, household) {
   document.body.prepend(skip, header);
 }
 
-/** Shows a message in an aria-live region: kind is "", "ok", "warn" or "error". */
 /** Marks the page as ready: every control's handler is attached, so no click or key press is lost. */
 export function pageReady() {
   document.body.dataset.ready = "true";
 }
 
+/** Shows a message in an aria-live region: kind is "", "ok", "warn" or "error". */
 export function say(element, text, kind = "") {
   element.className = `message ${kind}`.trim();
   element.textContent = text;
