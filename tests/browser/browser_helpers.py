@@ -313,7 +313,7 @@ class ConsoleWatch:
 
 
 def sign_in(page: object, url: str, username: str = "alice") -> None:
-    page.goto(f"{url}/login")  # type: ignore[attr-defined]
+    open_page(page, f"{url}/login")
     page.get_by_label("Username").fill(username)  # type: ignore[attr-defined]
     page.get_by_label("Password").fill(PASSWORD)  # type: ignore[attr-defined]
     page.get_by_role("button", name="Sign in").click()  # type: ignore[attr-defined]

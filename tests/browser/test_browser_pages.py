@@ -35,6 +35,7 @@ def test_sign_in_explains_a_wrong_password_then_opens_the_record_page(browser, s
     page = context.new_page()
     page.goto(f"{stack.url}/record")
     page.wait_for_url(re.compile(r"/login\?next="))  # signed out: sent to sign in, and back afterwards
+    wait_until_ready(page)
     page.get_by_label("Username").fill("alice")
     page.get_by_label("Password").fill("not the password")
     page.get_by_role("button", name="Sign in").click()
@@ -91,22 +92,67 @@ def test_a_server_rejection_is_shown_in_plain_words(page, console: ConsoleWatch,
     assert "0.3" in message.inner_text()  # the server's own reason: shorter than 0.3 s
 
 
-def test_the_record_controls_stay_disabled_until_the_page_can_handle_them(page, stack: Stack) -> None:
+def _hold(page, pattern: str) -> list:
+    """Holds back the requests matching `pattern`; returns them once the page has made one."""
     held: list = []
-    page.route("**/auth/me", lambda route: held.append(route))  # hold back who is signed in
-    page.goto(f"{stack.url}/record")
-    for _ in range(200):  # Playwright hands over the held request only while it is called
+    page.route(pattern, lambda route: held.append(route))
+    return held
+
+
+def _wait_for(page, held: list, what: str) -> None:
+    for _ in range(200):  # Playwright hands over a held request only while it is called
         if held:
-            break
+            return
         page.wait_for_timeout(50)
-    assert held, "the record page never asked who is signed in"
-    talk = page.get_by_role("button", name="Hold to talk")
-    assert talk.is_disabled() and page.locator("#file").is_disabled()
-    assert page.locator("body[data-ready]").count() == 0
+    raise AssertionError(f"the page never {what}")
+
+
+def _main_is_inert(page) -> bool:
+    return page.evaluate("document.querySelector('main').inert")
+
+
+def test_nothing_on_a_page_can_be_used_until_its_handlers_are_attached(page, stack: Stack) -> None:
+    for name in PAGES:
+        held = _hold(page, "**/auth/me")  # hold back who is signed in: the page cannot attach its handlers
+        page.goto(f"{stack.url}/{name}")
+        _wait_for(page, held, f"asked who is signed in ({name})")
+        assert _main_is_inert(page), f"{name}: its controls could be used before their handlers exist"
+        assert page.locator("body[data-ready]").count() == 0, name
+        if name == "record":  # its controls also look unavailable, not only behave so
+            assert page.get_by_role("button", name="Hold to talk").is_disabled()
+            assert page.locator("#file").is_disabled()
+        held[0].continue_()
+        page.unroute("**/auth/me")
+        wait_until_ready(page)
+        assert not _main_is_inert(page), name
+
+
+def test_the_sign_in_form_cannot_be_used_before_its_script_runs(browser, stack: Stack) -> None:
+    context = browser.new_context()
+    page = context.new_page()
+    held = _hold(page, "**/static/js/pages/login.js")
+    page.goto(f"{stack.url}/login", wait_until="commit")
+    _wait_for(page, held, "asked for its script")
+    assert _main_is_inert(page)  # a native submit would put the password in the address
     held[0].continue_()
-    page.unroute("**/auth/me")
     wait_until_ready(page)
-    assert talk.is_enabled() and page.locator("#file").is_enabled()
+    assert not _main_is_inert(page)
+    assert page.evaluate("document.activeElement.id") == "username"
+    context.close()
+
+
+def test_a_page_that_cannot_start_says_why_and_what_to_do(page, stack: Stack, console: ConsoleWatch) -> None:
+    console.expect("500")
+    page.route(
+        "**/api/v1/household",
+        lambda route: route.fulfill(status=500, json={"detail": "the database is not reachable"}),
+    )
+    page.goto(f"{stack.url}/household")
+    note = page.get_by_role("alert")
+    note.get_by_text("This page could not start: the database is not reachable").wait_for()
+    assert "Reload the page" in note.inner_text()
+    assert not _main_is_inert(page)  # the reason is readable (an inert region is hidden from screen readers)
+    assert page.locator("#invite").count() == 0
 
 
 def test_a_silent_microphone_and_a_refused_microphone_each_get_a_way_forward(
@@ -211,6 +257,7 @@ def test_a_member_does_not_see_the_admin_page(browser, stack: Stack) -> None:
     assert page.get_by_role("link", name="Admin").count() == 0
     page.goto(f"{stack.url}/admin")
     page.get_by_text("Only a household admin can use this page").wait_for()
+    assert not _main_is_inert(page)
     context.close()
 
 

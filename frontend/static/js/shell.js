@@ -16,15 +16,23 @@ export async function startPage(active, { adminOnly = false } = {}) {
   const household = await api("/household");
   drawHeader(active, me, household);
   if (adminOnly && me.role !== "admin") {
-    const main = document.querySelector("main");
-    main.innerHTML = "";
-    const note = document.createElement("p");
-    note.className = "message warn";
-    note.textContent = "Only a household admin can use this page. Ask an admin of your household to give you the admin role.";
-    main.append(note);
-    throw new Error("not an admin");
+    stopPage("Only a household admin can use this page. Ask an admin of your household to give you the admin role.", "warn");
+    throw new PageStopped();
   }
   return { me, household };
+}
+
+/** Thrown once the page has replaced its controls with a note saying why it cannot go on. */
+class PageStopped extends Error {}
+
+function stopPage(text, kind) {
+  const main = document.querySelector("main");
+  const note = document.createElement("p");
+  note.className = `message ${kind}`;
+  note.setAttribute("role", "alert");
+  note.textContent = text;
+  main.replaceChildren(note);
+  main.inert = false;
 }
 
 function drawHeader(active, me, household) {
@@ -52,9 +60,22 @@ function drawHeader(active, me, household) {
   document.body.prepend(skip, header);
 }
 
-/** Marks the page as ready: every control's handler is attached, so no click or key press is lost. */
+/**
+ * Every page's <main> starts inert: nothing in it can be clicked, typed into or submitted, since a press before
+ * its handler exists would be lost and a form would be submitted natively. The page calls this once every
+ * control's handler is attached.
+ */
 export function pageReady() {
+  document.querySelector("main").inert = false;
   document.body.dataset.ready = "true";
+}
+
+/** A page's start-up failed: before it was ready, its controls give way to the reason; after, the error is only logged. */
+export function pageFailed(error) {
+  if (error instanceof PageStopped) return;
+  console.warn(error);
+  if (document.body.dataset.ready || error.status === 401) return; // 401: already on the way to the sign-in page
+  stopPage(`This page could not start: ${error.message}. Reload the page to try again; if it fails again, ask your household's admin to check the server.`, "error");
 }
 
 /** Shows a message in an aria-live region: kind is "", "ok", "warn" or "error". */

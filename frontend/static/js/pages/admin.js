@@ -1,5 +1,5 @@
 import { api } from "../api.js";
-import { element, pageReady, robotPicker, say, startPage, when } from "../shell.js";
+import { element, pageFailed, pageReady, robotPicker, say, startPage, when } from "../shell.js";
 
 const $ = (id) => document.getElementById(id);
 let picker;
@@ -128,6 +128,4 @@ async function main() {
   setInterval(drawActiveRuns, 5000);
 }
 
-main().catch((error) => {
-  if (error.message !== "not an admin") console.warn(error);
-});
+main().catch(pageFailed);

@@ -1,5 +1,5 @@
 import { api } from "../api.js";
-import { element, pageReady, say, startPage } from "../shell.js";
+import { element, pageFailed, pageReady, say, startPage } from "../shell.js";
 
 const $ = (id) => document.getElementById(id);
 let me;
@@ -53,4 +53,4 @@ async function main() {
   await listMembers();
 }
 
-main().catch((error) => console.warn(error));
+main().catch(pageFailed);

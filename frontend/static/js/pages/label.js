@@ -1,5 +1,5 @@
 import { api } from "../api.js";
-import { pageReady, robotPicker, say, startPage } from "../shell.js";
+import { pageFailed, pageReady, robotPicker, say, startPage } from "../shell.js";
 
 const $ = (id) => document.getElementById(id);
 const message = $("label-message");
@@ -186,4 +186,4 @@ async function main() {
   await advance();
 }
 
-main().catch((error) => console.warn(error));
+main().catch(pageFailed);

@@ -1,5 +1,5 @@
 import { api } from "../api.js";
-import { say } from "../shell.js";
+import { pageReady, say } from "../shell.js";
 
 const form = document.getElementById("login");
 const message = document.getElementById("login-message");
@@ -24,4 +24,5 @@ form.addEventListener("submit", async (event) => {
     form.password.focus();
   }
 });
+pageReady();
 form.username.focus();

@@ -1,6 +1,6 @@
 import { api } from "../api.js";
 import { beforeAfterChart, lineChart } from "../chart.js";
-import { element, pageReady, startPage, when } from "../shell.js";
+import { element, pageFailed, pageReady, startPage, when } from "../shell.js";
 
 const runs = new Map(); // id → latest RunPublic
 const live = new Map(); // id → {metric: [[seconds, value], …]} collected from the stream
@@ -160,4 +160,4 @@ async function main() {
   pageReady();
 }
 
-main().catch((error) => console.warn(error));
+main().catch(pageFailed);

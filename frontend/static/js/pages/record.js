@@ -1,6 +1,6 @@
 import { api, uploadWithProgress } from "../api.js";
 import { Recorder } from "../recorder.js";
-import { element, pageReady, say, startPage, when } from "../shell.js";
+import { element, pageFailed, pageReady, say, startPage, when } from "../shell.js";
 
 const MIN_SECONDS = 0.3;
 const MAX_SECONDS = 10;
@@ -180,6 +180,4 @@ async function main() {
   await listClips();
 }
 
-main().catch((error) => {
-  if (error.message !== "not an admin") console.warn(error);
-});
+main().catch(pageFailed);

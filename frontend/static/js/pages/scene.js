@@ -1,4 +1,4 @@
-import { pageReady, say, startPage } from "../shell.js";
+import { pageFailed, pageReady, say, startPage } from "../shell.js";
 
 const SCENE_URL = "/scene/viser/";
 
@@ -18,4 +18,4 @@ async function main() {
   frame.hidden = false;
 }
 
-main().catch((error) => console.warn(error));
+main().catch(pageFailed);
