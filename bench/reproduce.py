@@ -19,7 +19,8 @@ diagnostic that showed "zero" alone is learnable; such runs go under "diagnostic
 steps/s, labels used (counted as the paper does), success per unheard tier and per intent, where each
 evaluation episode ended (which object, or none), peak memory, the curve PNG; for VAR rows also the share of
 each tier's clips the VAR embeds nearest their own command and the success split by that (misread goal clips
-against ones the policy failed to reach). A row run again under an earlier tag becomes the row's record again.
+against ones the policy failed to reach). Each episode (goal clip, layout seed, end distance) stays in the run
+directory as bench-eval-<tier>.json. A row run again under an earlier tag becomes the row's record again.
 Success-vs-steps curves: `bench/results/reproduce_<world>-<sounds>.png`. Never tuned on test voices:
 evaluation only reads the unheard tiers, training only the train split.
 """
@@ -184,7 +185,7 @@ def save_results(results: dict) -> None:
 
 def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     from learning.rl.baselines import method_config, needs_var
-    from learning.rl.evaluate import evaluate
+    from learning.rl.evaluate import evaluate, save_eval
     from learning.rl.plots import plot_run, read_metrics
     from learning.rl.ppo import load_policy
     from learning.rl.rewards import corpus_bank
@@ -242,6 +243,7 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         result = evaluate(policy, var, goals, world, config.image_size, split=split,
                           episodes_per_intent=args.episodes_per_intent, seed=2023)  # fmt: skip
         evaluations[split] = result.to_dict()
+        save_eval(result, run_dir / f"bench-eval-{split}.json")  # every episode, for failure analysis
         if understood is not None:
             evaluations[split]["by_goal_understanding"] = success_by_understanding(understood[split], result)
     plot_run(run_dir)
