@@ -93,7 +93,7 @@ def test_a_server_rejection_is_shown_in_plain_words(page, console: ConsoleWatch,
 
 
 def _hold(page, pattern: str) -> list:
-    """Holds back the requests matching `pattern`; returns them once the page has made one."""
+    """Holds back the requests matching `pattern`: the list fills as the page makes them."""
     held: list = []
     page.route(pattern, lambda route: held.append(route))
     return held
@@ -133,7 +133,7 @@ def test_the_sign_in_form_cannot_be_used_before_its_script_runs(browser, stack: 
     held = _hold(page, "**/static/js/pages/login.js")
     page.goto(f"{stack.url}/login", wait_until="commit")
     _wait_for(page, held, "asked for its script")
-    assert _main_is_inert(page)  # a native submit would put the password in the address
+    assert _main_is_inert(page)  # a native submit would send the password to a page that does not take it
     held[0].continue_()
     wait_until_ready(page)
     assert not _main_is_inert(page)
