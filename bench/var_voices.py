@@ -2,18 +2,22 @@
 
     nice -n 5 .venv/bin/python bench/var_voices.py --fold variants    # both variants, in parallel
     nice -n 5 .venv/bin/python bench/var_voices.py --fold accent
+    nice -n 5 .venv/bin/python bench/var_voices.py --fold accent-and-engines --variants speed4 --steps 4800
 
 The policy heads for whichever command a goal clip embeds nearest, so a clip that lands nearer another
 command's direction sends the robot to the wrong object however well PPO trained. This bench measures that
 rate, `nearest-command accuracy`, and the mean margin (cosine to the clip's own command minus the best other),
 on a validation fold made only of *training* voices, removed from the VAR's clips and scored afterwards:
 - `variants`: the espeak-ng variants in `HELD_OUT_VARIANTS` (new voices, known accents);
-- `accent`: every espeak-ng voice with the accent `HELD_OUT_ACCENT` (known variants, a new accent).
+- `accent`: every espeak-ng voice with the accent `HELD_OUT_ACCENT` (known variants, a new accent);
+- `accent-and-engines`: those and every voice of the other synthesizers (flite, festival) as well, the
+  hardest fold: the VAR keeps 23 espeak-ng voices, and the other engines' voices differ from them most.
 The unheard test tiers are not read here; `bench/reproduce.py` reports them for the variant chosen here.
 
 Variants: the training recipe of `bench/reproduce.py` (2,400 steps on the reproduce-kuka-50000 views), with
 and without speed-perturbed copies of the training clips (`varbot var train --speed-copies`). Both train at
-once, one thread each. Results: `bench/results/var_voices.json` (per variant and per held-out speaker).
+once, one thread each. Results: `bench/results/var_voices.json` (per variant and per held-out speaker); a
+run with another --steps or --seed is kept beside the default one as `<variant>-<steps>steps-seed<seed>`.
 """
 
 import argparse
@@ -34,7 +38,7 @@ STEPS = 2400
 # Eight espeak-ng variants that occur once in the training voices: a fold of voices whose variant is new.
 HELD_OUT_VARIANTS = ("m4", "m1", "paul", "f4", "f3", "max", "f2", "m3")
 HELD_OUT_ACCENT = "en-us"
-FOLDS = ("variants", "accent")
+FOLDS = ("variants", "accent", "accent-and-engines")
 VARIANTS = {
     "baseline": [],
     "speed4": ["--speed-copies", "4", "--speed-range", "0.85,1.15"],
@@ -57,8 +61,10 @@ def validation_fold(corpus, fold: str) -> tuple[list[str], list[str]]:
     speakers = sorted(set(corpus.subset("train").speaker.tolist()))
     if fold == "variants":
         held_out = [s for s in speakers if _espeak_parts(s)[0] in HELD_OUT_VARIANTS]
-    else:
+    elif fold == "accent":
         held_out = [s for s in speakers if _espeak_parts(s)[1] == HELD_OUT_ACCENT]
+    else:
+        held_out = [s for s in speakers if _espeak_parts(s)[1] in (HELD_OUT_ACCENT, None)]
     return [s for s in speakers if s not in held_out], held_out
 
 
@@ -139,13 +145,14 @@ def main() -> None:
     kept, held_out = validation_fold(corpus, args.fold)
     seconds = train_all(variants, kept, args)
     results = json.loads(OUTPUT.read_text()) if OUTPUT.exists() else {"benchmark": "var_voices", "folds": {}}
-    results.update(dataset=DATASET, sounds=SOUNDS, steps=args.steps, seed=args.seed)
+    results.update(dataset=DATASET, sounds=SOUNDS)
     fold = results["folds"].setdefault(args.fold, {"held_out": held_out, "variants": {}})
     for name in variants:
-        record = score(name, corpus, kept, held_out, args)
+        record = {**score(name, corpus, kept, held_out, args), "steps": args.steps, "seed": args.seed}
         if name in seconds:
             record["wall_s_trained_in_parallel"] = seconds[name]
-        fold["variants"][name] = {**fold["variants"].get(name, {}), **record}
+        key = name if (args.steps, args.seed) == (STEPS, 0) else f"{name}-{args.steps}steps-seed{args.seed}"
+        fold["variants"][key] = {**fold["variants"].get(key, {}), **record}
     RESULTS.mkdir(parents=True, exist_ok=True)
     OUTPUT.write_text(json.dumps(results, indent=2))
     print_table(args.fold, fold)
@@ -155,7 +162,9 @@ def print_table(name: str, fold: dict) -> None:
     title = f"fold '{name}': nearest-command accuracy on {len(fold['held_out'])} held-out training voices"
     table = Table(title=title)
     for column in ("variant", "accuracy", "worst voice", "mean margin", "smallest margin", "clips"):
-        table.add_column(column, justify="left" if column == "variant" else "right")
+        table.add_column(
+            column, justify="left" if column == "variant" else "right", no_wrap=column == "variant"
+        )
     for variant, record in fold["variants"].items():
         table.add_row(
             variant,
