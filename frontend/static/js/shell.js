@@ -27,10 +27,8 @@ class PageStopped extends Error {}
 
 function stopPage(text, kind) {
   const main = document.querySelector("main");
-  const note = document.createElement("p");
-  note.className = `message ${kind}`;
-  note.setAttribute("role", "alert");
-  note.textContent = text;
+  const note = element("p", { role: "alert" });
+  say(note, text, kind);
   main.replaceChildren(note);
   main.inert = false;
 }

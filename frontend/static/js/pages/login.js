@@ -24,5 +24,5 @@ form.addEventListener("submit", async (event) => {
     form.password.focus();
   }
 });
-pageReady();
+pageReady(); // first: an inert field cannot take focus
 form.username.focus();
