@@ -85,6 +85,13 @@ def parse_arguments() -> argparse.Namespace:
         "--policy-image-size", type=int, default=None, help="policy CNN input size (default: PPOConfig)"
     )
     parser.add_argument("--ent-coef", type=float, default=None, help="PPO entropy bonus (default: PPOConfig)")
+    parser.add_argument(
+        "--goal-match",
+        action="store_const",
+        const=True,
+        default=None,
+        help="the policy also sees f_I(I_t)·f_S(S_goal), the reward it earns now (experimental)",
+    )
     parser.add_argument("--episodes-per-intent", type=int, default=50)
     parser.add_argument("--max-minutes", type=float, default=None, help="stop a row after this wall time")
     parser.add_argument("--tag", default="full", help="label stored with the rows (e.g. reduced)")
@@ -306,7 +313,11 @@ def success_by_understanding(understood_clips, result) -> dict[str, float | int 
 
 def optional_overrides(args: argparse.Namespace) -> dict:
     """PPO settings given on the command line; the others keep PPOConfig's defaults."""
-    given = {"policy_image_size": args.policy_image_size, "ent_coef": args.ent_coef}
+    given = {
+        "policy_image_size": args.policy_image_size,
+        "ent_coef": args.ent_coef,
+        "goal_match": args.goal_match,
+    }
     return {name: value for name, value in given.items() if value is not None}
 
 
