@@ -14,6 +14,8 @@ Two training options. --hard-target-share S (default 0.5, as every new run; 0 dr
 as the paper) gives a share S of the episodes to targets whose recent mean return (the run's own reward,
 intrinsic for VAR) is furthest below the best target's. --target-intents 0 trains on target 0 only: the
 diagnostic that showed "zero" alone is learnable; such runs go under "diagnostics", not into the table.
+--experiment records a run under "experiments", beside its row, so trying a PPO variant (--ent-coef,
+--goal-match) never replaces the row's result; its curve still joins the row's figure.
 
 `bench/results/reproduce.json` keeps one record per row: status (complete / partial), env steps, wall time,
 steps/s, labels used (counted as the paper does), success per unheard tier and per intent, where each
@@ -102,6 +104,11 @@ def parse_arguments() -> argparse.Namespace:
         type=float,
         default=0.5,
         help="curriculum: share of episodes whose target favours low recent return (0: uniform, the paper)",
+    )
+    parser.add_argument(
+        "--experiment",
+        action="store_true",
+        help="record the run under experiments, beside its row, instead of making it the row",
     )
     parser.add_argument(
         "--target-intents",
@@ -322,12 +329,14 @@ def optional_overrides(args: argparse.Namespace) -> dict:
 
 
 def record_slot(results: dict, key: str, args: argparse.Namespace) -> tuple[dict, str]:
-    """Where a run's record goes: a row of the table, or, for a diagnostic run (--target-intents), its own
-    entry under "diagnostics"."""
-    if not args.target_intents:
-        return results["rows"], key
-    targets = ",".join(map(str, args.target_intents))
-    return results.setdefault("diagnostics", {}), f"{key} targets {targets} ({args.tag})"
+    """Where a run's record goes: a row of the table, or its own entry beside the table for a diagnostic run
+    (--target-intents, under "diagnostics") or an experiment (--experiment, under "experiments")."""
+    if args.target_intents:
+        targets = ",".join(map(str, args.target_intents))
+        return results.setdefault("diagnostics", {}), f"{key} targets {targets} ({args.tag})"
+    if args.experiment:
+        return results.setdefault("experiments", {}), f"{key} ({args.tag})"
+    return results["rows"], key
 
 
 def curves(results: dict) -> None:
@@ -337,7 +346,8 @@ def curves(results: dict) -> None:
     from learning.rl.plots import plot_success_curves, success_curve
 
     by_row: dict[str, dict] = {}
-    for record in [*results.get("earlier_runs", []), *results["rows"].values()]:
+    experiments = results.get("experiments", {}).values()
+    for record in [*results.get("earlier_runs", []), *results["rows"].values(), *experiments]:
         if "success_curve" not in record and Path(record.get("run_dir", ""), "metrics.jsonl").is_file():
             record["success_curve"] = success_curve(Path(record["run_dir"]))
         label = f"{record.get('method')} ({record.get('tag')})"
@@ -387,7 +397,7 @@ def main() -> None:
             continue
         if done.get("tag", args.tag) != args.tag and "success" in done:
             results.setdefault("earlier_runs", []).append(done)  # kept for comparison, not replaced
-        if not args.target_intents:  # a run taken up again is the row's record now, not an earlier one
+        if store is results["rows"]:  # a run taken up again is the row's record now, not an earlier one
             results["earlier_runs"] = [
                 r
                 for r in results.get("earlier_runs", [])
