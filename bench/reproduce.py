@@ -366,7 +366,10 @@ def print_table(results: dict) -> None:
     table = Table(title="Table I on this machine (success %, unheard tiers)")
     for column in ("row", "method", "status", "env steps", "steps/s", "success by tier", "paper", "labels"):
         table.add_column(column)
-    for record in results["rows"].values():
+    experiments = [
+        {**r, "row": f"{r['row']} (experiment {r['tag']})"} for r in results.get("experiments", {}).values()
+    ]
+    for record in [*results["rows"].values(), *experiments]:
         if "success" not in record:
             continue
         tiers = ", ".join(f"{k}: {100 * v:.1f}" for k, v in record["success"].items())

@@ -35,6 +35,7 @@ OUTPUT = RESULTS / "var_voices.json"
 DATASET = "reproduce-kuka-50000"
 SOUNDS = "wordset"
 STEPS = 2400
+SEED = 0
 # Eight espeak-ng variants that occur once in the training voices: a fold of voices whose variant is new.
 HELD_OUT_VARIANTS = ("m4", "m1", "paul", "f4", "f3", "max", "f2", "m3")
 HELD_OUT_ACCENT = "en-us"
@@ -52,7 +53,7 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument("--variants", default=",".join(VARIANTS), help=f"comma-separated: {list(VARIANTS)}")
     parser.add_argument("--fold", choices=FOLDS, default="variants", help="which training voices to hold out")
     parser.add_argument("--steps", type=int, default=STEPS)
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=SEED)
     return parser.parse_args()
 
 
@@ -151,7 +152,9 @@ def main() -> None:
         record = {**score(name, corpus, kept, held_out, args), "steps": args.steps, "seed": args.seed}
         if name in seconds:
             record["wall_s_trained_in_parallel"] = seconds[name]
-        key = name if (args.steps, args.seed) == (STEPS, 0) else f"{name}-{args.steps}steps-seed{args.seed}"
+        key = (
+            name if (args.steps, args.seed) == (STEPS, SEED) else f"{name}-{args.steps}steps-seed{args.seed}"
+        )
         fold["variants"][key] = {**fold["variants"].get(key, {}), **record}
     RESULTS.mkdir(parents=True, exist_ok=True)
     OUTPUT.write_text(json.dumps(results, indent=2))
