@@ -5,7 +5,7 @@ from typing import Annotated
 
 import typer
 
-from varbot.paths import REPO_ROOT
+from core.paths import REPO_ROOT
 
 admin_app = typer.Typer(help="Households and their admins.", no_args_is_help=True)
 db_app = typer.Typer(help="The database schema (Alembic migrations).", no_args_is_help=True)

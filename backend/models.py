@@ -22,6 +22,8 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
+from core.robots import RobotKind
+
 
 def utcnow() -> datetime:
     return datetime.now(UTC)
@@ -59,17 +61,6 @@ class Base(DeclarativeBase):
 class Role(StrEnum):
     MEMBER = "member"
     ADMIN = "admin"
-
-
-class RobotKind(StrEnum):
-    KUKA_SIM = "kuka-sim"
-    TURTLEBOT_SIM = "turtlebot-sim"
-    KINOVA_SIM = "kinova-sim"
-    KINOVA_REAL = "kinova-real"
-
-    @property
-    def simulated(self) -> bool:
-        return self.value.endswith("-sim")
 
 
 class Verdict(StrEnum):

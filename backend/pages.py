@@ -31,7 +31,7 @@ from backend.db import get_session_factory
 from backend.deps import Caller, get_caller
 from backend.settings import get_settings
 from backend.system_status import router as system_router
-from varbot.paths import REPO_ROOT, data_dir
+from core.paths import REPO_ROOT, data_dir
 
 FRONTEND_DIR = REPO_ROOT / "frontend"
 PAGES = ("login", "record", "label", "progress", "admin", "household", "scene")

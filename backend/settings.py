@@ -8,7 +8,7 @@ from urllib.parse import urlsplit
 from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
-from varbot.paths import data_dir
+from core.paths import data_dir
 
 DEFAULT_SECRET = "changethis"
 

@@ -153,7 +153,7 @@ def ensure_dataset(world: str, sounds: str, args: argparse.Namespace) -> str:
 
 def ensure_encoders(world: str, sounds: str, policy_image_size: int, args: argparse.Namespace) -> Path:
     """The sparse baseline's encoders, pre-trained on one-hot labels of the row's views (as the paper)."""
-    from varbot.paths import data_subdir
+    from core.paths import data_subdir
 
     dataset = ensure_dataset(world, sounds, args)
     out = (
@@ -170,7 +170,7 @@ def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
     """The VAR for a row: --var if given, else one trained here (on --var-dataset or on new views)."""
     if args.var is not None:
         return args.var
-    from varbot.paths import data_subdir
+    from core.paths import data_subdir
 
     dataset = row_dataset(world, args)
     schedule = f"-{args.var_max_steps}steps" if args.var_max_steps else ""
@@ -198,6 +198,7 @@ def save_results(results: dict) -> None:
 
 
 def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
+    from core.paths import data_subdir
     from learning.rl.baselines import method_config, needs_var
     from learning.rl.evaluate import evaluate, save_eval
     from learning.rl.plots import plot_run, read_metrics
@@ -205,7 +206,6 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     from learning.rl.rewards import corpus_bank
     from learning.rl.run import load_frozen_var, train_run
     from learning.sounds import load_corpus
-    from varbot.paths import data_subdir
 
     row, method = key.split(":")
     world, sounds = WORLD_SOUNDS[row]

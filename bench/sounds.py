@@ -24,11 +24,11 @@ from rich.table import Table
 from torch import nn
 from tqdm import tqdm
 
+from core.paths import data_dir
 from learning.audio import features_from_bytes
 from learning.augment import augment_features
 from learning.sounds import DEFAULT_SETS, SET_NAMES, SoundCorpus, load_corpus
 from learning.sounds.build import build_corpora
-from varbot.paths import data_dir
 
 RESULTS = Path(__file__).resolve().parent / "results" / "sounds.json"
 

@@ -53,13 +53,13 @@ def parse_arguments() -> argparse.Namespace:
 
 
 def run_row(row: str, args: argparse.Namespace) -> dict:
+    from core.paths import data_subdir
     from learning.sounds import load_corpus
     from learning.var.checkpoint import load_var
     from learning.var.dataset import collect_dataset
     from learning.var.evaluate import evaluate_var
     from learning.var.plot import plot_sphere
     from learning.var.train import TrainConfig, train
-    from varbot.paths import data_subdir
 
     world, sounds = ROWS[row]
     corpus = load_corpus(sounds)
@@ -130,6 +130,7 @@ NEW_VOICE_SPLIT = "unheard-real-voices"
 
 def run_finetune(row: str, result: dict, args: argparse.Namespace) -> dict:
     """Fine-tune the row's VAR on views of a shifted room paired with one new voice; compare replay or not."""
+    from core.paths import data_subdir
     from learning.sounds import load_corpus
     from learning.var.checkpoint import load_var
     from learning.var.dataset import SoundBank, collect_dataset
@@ -137,7 +138,6 @@ def run_finetune(row: str, result: dict, args: argparse.Namespace) -> dict:
     from learning.var.finetune import finetune_config
     from learning.var.train import train
     from sim.domain import DomainShift
-    from varbot.paths import data_subdir
 
     world, sounds = ROWS[row]
     corpus = load_corpus(sounds)

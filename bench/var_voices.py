@@ -79,7 +79,7 @@ def _espeak_parts(speaker: str) -> tuple[str | None, str | None]:
 
 
 def run_dir(variant: str, args: argparse.Namespace) -> Path:
-    from varbot.paths import data_subdir
+    from core.paths import data_subdir
 
     return data_subdir("bench", "var_voices", f"{args.fold}-{variant}-{args.steps}steps-seed{args.seed}")
 

@@ -25,10 +25,10 @@ import numpy as np
 import viser
 from viser.extras import ViserUrdf
 
+from core.paths import data_subdir
 from scene.household import ClipInfo, HouseholdView, clip_audio, load_view, model_bytes, snapshot_images
 from scene.live import FOLLOW_TIMEOUT_S, LiveRollout, RolloutFeed
 from scene.world import DISPLAY_URDFS, SPHERE_PLACE_DEFAULT, SPHERE_PLACES, SimWorld, world_for_robot_kind
-from varbot.paths import data_subdir
 
 REFRESH_S = 5.0
 REWARD_HISTORY = 120

@@ -2,9 +2,9 @@
 
 import numpy as np
 
+from core.paths import data_subdir
 from sim import WORLDS
 from sim.render import render_world_frame, save_png
-from varbot.paths import data_subdir
 
 DEMO_SIZE_PX = 128
 ORACLE_STEPS = 60

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from varbot.paths import data_subdir
+from core.paths import data_subdir
 
 LOWPOLY_VERSION = 1
 DEFAULT_CELL_M = 0.004

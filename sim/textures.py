@@ -7,7 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from varbot.paths import data_subdir
+from core.paths import data_subdir
 
 TEXTURE_KINDS = ("checker", "noise")
 TEXTURE_SIZE_PX = 64

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from varbot.paths import data_subdir
+from core.paths import data_subdir
 
 READY_TIMEOUT_S = 60.0
 STOP_TIMEOUT_S = 15.0

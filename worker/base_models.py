@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from varbot.paths import REPO_ROOT, data_dir
+from core.paths import REPO_ROOT, data_dir
 
 SHIPPED_DIR = REPO_ROOT / "worker" / "base_models"
 RECORD = "base.json"

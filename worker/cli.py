@@ -67,7 +67,7 @@ def build_base(
     """Train the base VAR + policy for one simulated world with the project's own trainers and record how."""
     import json
 
-    from varbot.paths import data_dir
+    from core.paths import data_dir
     from worker.base_models import build_base as build
 
     record = build(
@@ -94,9 +94,9 @@ def adopt(
     """Make checkpoints trained elsewhere (e.g. by the benchmarks) a world's base model, with their record."""
     import json
 
+    from core.paths import data_dir
     from learning.rl.ppo import read_policy_checkpoint
     from learning.var.checkpoint import read_checkpoint
-    from varbot.paths import data_dir
     from worker.base_models import write_base
 
     var_config = read_checkpoint(var)["config"]

@@ -29,7 +29,7 @@ from backend.deps import get_blob_store
 from backend.services import model_versions
 from backend.services.runs import publish_run
 from backend.settings import get_settings
-from varbot.paths import data_subdir
+from core.paths import data_subdir
 from worker.base_models import BaseModelMissing, find_base
 from worker.evaluation import ModelScore, decide, score_model, summarise_scores
 from worker.household import HouseholdData, TooFewTriplets, load_household, world_of

@@ -51,9 +51,9 @@ def train(
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
+    from core.paths import data_dir
     from learning.rl.baselines import METHODS, method_config, needs_var
     from learning.rl.run import train_run
-    from varbot.paths import data_dir
 
     if method not in METHODS:
         _fail(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -127,8 +127,8 @@ def improve(
     resume: Annotated[bool, typer.Option("--resume")] = False,
 ) -> None:
     """Self-improvement: continue PPO with a fine-tuned VAR and the household's own clips as goals."""
+    from core.paths import data_dir
     from learning.rl.improve import improve as run_improve
-    from varbot.paths import data_dir
 
     run_dir = run_dir or data_dir() / "rl" / "improve" / policy.parent.name
     try:

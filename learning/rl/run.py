@@ -29,8 +29,8 @@ def var_label_count(var_path: str | Path | None) -> dict[str, int]:
     """Labels behind a VAR, counted as the paper does: 2 per triplet of the dataset it was trained on."""
     if var_path is None:
         return {}
+    from core.paths import data_dir
     from learning.var.checkpoint import read_checkpoint
-    from varbot.paths import data_dir
 
     payload = read_checkpoint(var_path)
     dataset = (payload.get("train_config") or {}).get("dataset")

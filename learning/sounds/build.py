@@ -19,12 +19,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
+from core.paths import data_dir
 from learning.audio import PEAK_LEVEL, SAMPLE_RATE, decode_audio, encode_wav, features_from_bytes
 from learning.sounds import engines
 from learning.sounds.recordings import RECORDING_PARTS, crop_plan, varied_recordings
 from learning.sounds.sets import MIX, NOTE_MIDI, NOTES, OBJECTS, SoundSet, sound_set
 from learning.sounds.speakers import PROFILES, Profile, Speaker, instruments, speech_speakers
-from varbot.paths import data_dir
 
 BUILDER_VERSION = 2
 MANIFEST = "manifest.jsonl"

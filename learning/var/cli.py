@@ -23,7 +23,7 @@ def _domain(name: str):
 
 
 def _default_run_dir(dataset: str, sounds: str, kind: str) -> str:
-    from varbot.paths import data_subdir
+    from core.paths import data_subdir
 
     return str(data_subdir("var", "runs", f"{Path(dataset).name}-{sounds}-{kind}"))
 

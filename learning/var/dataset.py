@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from varbot.paths import data_subdir
+from core.paths import data_subdir
 
 NOTHING_HEARD = -1
 SILENCE_ID = -1  # in drawn sound ids: the all-zero MFCC
