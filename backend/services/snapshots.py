@@ -2,6 +2,7 @@
 
 import io
 import json
+import re
 from datetime import UTC, datetime
 from typing import Any
 
@@ -14,6 +15,7 @@ from backend.blobs import BlobStore, delete_if_unreferenced, sha256_hex
 from backend.errors import Invalid, NotFound
 
 MAX_SIDE = 4096
+_SIDE_RULE = f"each side must be 1..{MAX_SIDE} pixels; send the camera frame at its own resolution"
 SOURCES = ("sim-capture", "upload", "camera")
 
 
@@ -51,19 +53,26 @@ def as_png(data: bytes, max_bytes: int) -> tuple[bytes, int, int]:
         with Image.open(io.BytesIO(data)) as image:
             if image.format not in ("PNG", "JPEG", "WEBP"):
                 raise Invalid(f"send a PNG or JPEG camera image, not {image.format}")
-            width, height = image.size
+            width, height = image.size  # as the header declares it: nothing is decoded yet
             if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):
-                raise Invalid(f"the image is {width}×{height}; each side must be 1..{MAX_SIDE} pixels")
+                raise Invalid(f"the image is {width}×{height}; {_SIDE_RULE}")
             image.load()
             if image.format == "PNG" and image.mode in ("RGB", "RGBA", "L"):
                 return data, width, height
             out = io.BytesIO()
             image.convert("RGB").save(out, format="PNG")
             return out.getvalue(), width, height
+    except Image.DecompressionBombError as exc:  # Pillow refuses to open it at all: far over our limit
+        raise Invalid(f"the image {_declared_pixels(exc)}; {_SIDE_RULE}") from exc
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as exc:
         if isinstance(exc, Invalid):
             raise
         raise Invalid("the image cannot be decoded; send a PNG or JPEG camera image") from exc
+
+
+def _declared_pixels(bomb: Image.DecompressionBombError) -> str:
+    found = re.search(r"\((\d+) pixels\)", str(bomb))
+    return f"declares {int(found[1]):,} pixels" if found else "declares far too many pixels"
 
 
 def parse_json_field(text: str | None, what: str, expected: type) -> Any:

@@ -1,7 +1,10 @@
 """Snapshots: capture requests to the robot worker, uploaded frames, listing, PNGs, delete."""
 
 import io
+import struct
+import zlib
 
+import pytest
 from apitest_helpers import make_png, make_robot, queued_tasks, upload_clip, upload_snapshot
 from PIL import Image
 
@@ -107,3 +110,34 @@ def test_snapshots_of_another_household_are_404(admin, stranger) -> None:
         == 404
     )
     assert stranger.client.get(f"/api/v1/snapshots?robot_id={robot}").json() == []
+
+
+def png_header_only(width: int, height: int) -> bytes:
+    """A tiny PNG whose header declares width×height RGB pixels (a decompression bomb when large)."""
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 2, 0, 0, 0)
+    return (
+        b"\x89PNG\r\n\x1a\n"
+        + chunk(b"IHDR", header)
+        + chunk(b"IDAT", zlib.compress(b""))
+        + chunk(b"IEND", b"")
+    )
+
+
+@pytest.mark.parametrize(("width", "height"), [(20_000, 20_000), (5000, 10), (1, 70_000)])
+def test_an_image_too_large_by_its_header_is_refused_before_decoding(
+    admin, blob_store, width, height
+) -> None:
+    robot = make_robot(admin, "kinova-real")
+    bomb = png_header_only(width, height)
+    assert len(bomb) < 100
+    response = admin.client.post(
+        f"/api/v1/robots/{robot}/snapshots", files={"image": ("f.png", bomb, "image/png")}
+    )
+    assert response.status_code == 422, response.text
+    assert "each side must be 1..4096 pixels" in response.json()["detail"]
+    assert admin.client.get("/api/v1/snapshots").json() == []
+    assert list(blob_store.root.glob("??/??/*")) == []
