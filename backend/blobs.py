@@ -18,6 +18,7 @@ from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from backend import models
+from core.paths import private_dir
 
 _KEY = re.compile(r"^[0-9a-f]{64}$")
 
@@ -52,10 +53,8 @@ def check_key(key: str) -> str:
 
 class LocalBlobStore:
     def __init__(self, root: Path) -> None:
-        self.root = Path(root)
-        self.root.mkdir(parents=True, exist_ok=True)
-        self._tmp = self.root / "tmp"
-        self._tmp.mkdir(exist_ok=True)
+        self.root = private_dir(Path(root))  # folders 0700; mkstemp makes the files 0600
+        self._tmp = private_dir(self.root / "tmp")
 
     def path(self, key: str) -> Path:
         check_key(key)
@@ -67,7 +66,7 @@ class LocalBlobStore:
         if target.exists():
             os.utime(target)  # a fresh upload of known bytes must not be swept as an orphan meanwhile
             return key
-        target.parent.mkdir(parents=True, exist_ok=True)
+        private_dir(target.parent)
         fd, tmp_name = tempfile.mkstemp(dir=self._tmp, prefix=key[:8], suffix=".part")
         try:
             with os.fdopen(fd, "wb") as handle:

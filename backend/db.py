@@ -2,11 +2,13 @@
 
 from collections.abc import Iterator
 from functools import lru_cache
+from pathlib import Path
 
-from sqlalchemy import Engine, create_engine, event
+from sqlalchemy import Engine, create_engine, event, make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 from backend.settings import get_settings
+from core.paths import private_file
 
 
 def _configure_sqlite(dbapi_connection, _record) -> None:  # type: ignore[no-untyped-def]
@@ -20,6 +22,8 @@ def _configure_sqlite(dbapi_connection, _record) -> None:  # type: ignore[no-unt
 
 def make_engine(url: str) -> Engine:
     if url.startswith("sqlite"):
+        if (database := make_url(url).database) and database != ":memory:":
+            private_file(Path(database))  # SQLite would create it 0644; its -wal and -shm files copy its mode
         # As many connections as the server has request threads (anyio's default limiter: 40).
         engine = create_engine(url, connect_args={"check_same_thread": False, "timeout": 10}, pool_size=40)
         event.listen(engine, "connect", _configure_sqlite)
