@@ -93,11 +93,6 @@ class Brain:
         return mean.clamp(-1.0, 1.0)[0].numpy()
 
 
-def reward(image_embedding: np.ndarray, goal_embedding: np.ndarray) -> float:
-    """The intrinsic reward r = f_I(I_t) · f_S(S_goal)."""
-    return float(np.dot(image_embedding, goal_embedding))
-
-
 @contextmanager
 def _as_file(data: bytes) -> Iterator[Path]:
     """The loaders want a path; checkpoints come from the blob store as bytes."""

@@ -13,12 +13,6 @@ import pybullet_data
 import sim
 from sim.mirror import BodyMirror
 
-ROBOT_WORLDS = {
-    "kuka-sim": "kuka",
-    "kinova-sim": "kinova",
-    "turtlebot-sim": "turtlebot",
-    "kinova-real": "kinova",
-}
 _ASSETS = Path(sim.__file__).resolve().parent / "assets"
 DISPLAY_URDFS = {
     "kuka": Path(pybullet_data.getDataPath()) / "kuka_iiwa" / "model.urdf",
@@ -41,15 +35,6 @@ class BodyShape:
     rgba: tuple[float, float, float, float]
     local_position: tuple[float, float, float]
     local_orientation: tuple[float, float, float, float]  # x, y, z, w
-
-
-def world_for_robot_kind(kind: str) -> str:
-    try:
-        return ROBOT_WORLDS[kind]
-    except KeyError:
-        raise ValueError(
-            f"no simulated world for robot kind {kind!r}; known: {', '.join(ROBOT_WORLDS)}"
-        ) from None
 
 
 def wxyz(xyzw: Any) -> tuple[float, float, float, float]:
@@ -85,9 +70,8 @@ class SimWorld:
     def state(self) -> np.ndarray:
         return np.asarray(self.observation["state"], dtype=np.float32)
 
-    def reset(self, intent: int | None = None) -> None:
-        options = {"intent": intent} if intent is not None else None
-        self.observation, self.info = self.env.reset(seed=int(self.rng.integers(2**31 - 1)), options=options)
+    def reset(self) -> None:
+        self.observation, self.info = self.env.reset(seed=int(self.rng.integers(2**31 - 1)))
 
     def step(self, action: np.ndarray) -> bool:
         """One env step; True when the episode ended."""

@@ -114,11 +114,15 @@ def scene(scene_household: SceneHousehold) -> Iterator[SceneService]:
     from scene.brain import Brain
 
     service = SceneService(scene_household.household_id, fps=15, follow_timeout_s=1.0)
-    service.brain = Brain(var_bytes(IMAGE), None)  # as if the household had an active model
+    service.model.brain = Brain(var_bytes(IMAGE), None)  # as if the household had an active model
     thread = threading.Thread(target=service.run, name="scene-under-test", daemon=True)
     thread.start()
     try:
-        eventually(lambda: service.world is not None and service.feed.subscribed.is_set(), 60, "the scene")
+
+        def ready() -> bool:
+            return service.world is not None and service.run_following.feed.subscribed.is_set()
+
+        eventually(ready, 60, "the scene")
         yield service
     finally:
         service.stop()
@@ -175,25 +179,25 @@ def test_a_running_scene_follows_a_published_rollout_and_returns_to_exploring_wh
     run = live_run(7, "kuka", 5)
     step = run.show(4000, 0.25)
     eventually(lambda: scene.following is not None, 10, "the scene to follow run 7")
-    eventually(lambda: np.array_equal(scene.camera.image, step.image), 5, "the run's camera image")
+    eventually(lambda: np.array_equal(scene.panel.camera.image, step.image), 5, "the run's camera image")
     # The scene's loop writes the status line last: once it names the run, the rest is in place.
     following = "Following training run 7 live (policy stage), step 4000"
-    eventually(lambda: following in scene.status.content, 5, "the status to name the run")
-    assert scene.reward_number.value == pytest.approx(0.25)
+    eventually(lambda: following in scene.panel.status.content, 5, "the status to name the run")
+    assert scene.panel.reward_number.value == pytest.approx(0.25)
     assert_same_pose(scene.world.mirror.state(), run.training.mirror_state())
-    expected = scene.brain.embed_images(step.image[None])[0] * scene.sphere_radius * 1.02
-    np.testing.assert_allclose(scene.current_marker.position, expected, atol=1e-5)
-    assert scene.current_marker.visible
+    expected = scene.model.brain.embed_images(step.image[None])[0] * scene.sphere_view.radius * 1.02
+    np.testing.assert_allclose(scene.sphere_view.current_marker.position, expected, atol=1e-5)
+    assert scene.sphere_view.current_marker.visible
 
     run.training.step(np.array([1.0, 1.0]))
     moved = run.show(4008, -0.1)
-    eventually(lambda: np.array_equal(scene.camera.image, moved.image), 5, "the next image")
+    eventually(lambda: np.array_equal(scene.panel.camera.image, moved.image), 5, "the next image")
     assert_same_pose(scene.world.mirror.state(), run.training.mirror_state())
 
     run.stop()
     eventually(lambda: scene.following is None, 5, "the scene to stop following")
-    eventually(lambda: "Following" not in scene.status.content, 5, "the status to drop the run")
-    eventually(lambda: not np.array_equal(scene.camera.image, moved.image), 5, "the scene's own camera")
+    eventually(lambda: "Following" not in scene.panel.status.content, 5, "the status to drop the run")
+    eventually(lambda: not np.array_equal(scene.panel.camera.image, moved.image), 5, "the scene's own camera")
     assert scene.world.world == "kuka"
 
 

@@ -11,7 +11,8 @@ import soundfile
 import torch
 import yourdfpy
 
-from scene.world import DISPLAY_URDFS, SimWorld, world_for_robot_kind
+from core.robots import world_of_kind
+from scene.world import DISPLAY_URDFS, SimWorld
 
 
 @pytest.mark.parametrize("world", ["kuka", "kinova", "turtlebot"])
@@ -33,18 +34,18 @@ def test_the_display_robot_follows_the_simulated_joints(world: str) -> None:
 
 
 def test_every_robot_kind_has_a_world_and_unknown_kinds_are_refused() -> None:
-    assert {world_for_robot_kind(k) for k in ("kuka-sim", "kinova-sim", "turtlebot-sim")} == {
+    assert {world_of_kind(k) for k in ("kuka-sim", "kinova-sim", "turtlebot-sim")} == {
         "kuka",
         "kinova",
         "turtlebot",
     }
     with pytest.raises(ValueError, match="no simulated world"):
-        world_for_robot_kind("vacuum-cleaner")
+        world_of_kind("vacuum-cleaner")
 
 
 def test_snapshots_join_the_command_whose_clips_are_closest() -> None:
     from scene.household import ClipInfo, HouseholdView
-    from scene.service import SceneService
+    from scene.sphere import nearest_commands
 
     view = HouseholdView(household_id=1, robot=None)
     view.clips = [
@@ -54,8 +55,8 @@ def test_snapshots_join_the_command_whose_clips_are_closest() -> None:
     ]
     clips = {1: np.array([1.0, 0, 0]), 2: np.array([0.9, 0.1, 0]), 3: np.array([0.0, 0, 1])}
     points = np.array([[0.8, 0.2, 0.1], [0.1, 0.0, 0.99]])
-    assert SceneService._nearest_commands(points, clips, view) == ["name:left", "name:right"]
-    assert SceneService._nearest_commands(points, {}, view) == [None, None]
+    assert nearest_commands(points, clips, view) == ["name:left", "name:right"]
+    assert nearest_commands(points, {}, view) == [None, None]
 
 
 def _checkpoints() -> tuple[bytes, bytes]:
@@ -78,7 +79,8 @@ def _checkpoints() -> tuple[bytes, bytes]:
 
 
 def test_the_brain_embeds_on_the_unit_sphere_and_drives_the_robot_toward_a_goal() -> None:
-    from scene.brain import Brain, Goal, reward
+    from scene.brain import Brain, Goal
+    from scene.sphere import reward
 
     var_bytes, policy_bytes = _checkpoints()
     brain = Brain(var_bytes, policy_bytes)
