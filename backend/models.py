@@ -22,6 +22,7 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
+from core.labels import Verdict
 from core.robots import RobotKind
 
 
@@ -61,11 +62,6 @@ class Base(DeclarativeBase):
 class Role(StrEnum):
     MEMBER = "member"
     ADMIN = "admin"
-
-
-class Verdict(StrEnum):
-    IS = "is"
-    IS_NOT = "is_not"
 
 
 class RunKind(StrEnum):
@@ -182,7 +178,7 @@ class Snapshot(Base):
     """One robot camera image (PNG in the blob store) with the robot state at that moment."""
 
     __tablename__ = "snapshots"
-    # The asking order of GET /labels/next: most-answered images first (see backend/services/labels.py).
+    # The asking order of GET /labels/next: most-answered images first (see backend/services/pairs.py).
     __table_args__ = (Index("ix_snapshots_asking_order", "household_id", "label_count", "id"),)
 
     id: Mapped[int] = mapped_column(primary_key=True)

@@ -9,8 +9,8 @@ from sqlalchemy import select
 from backend import models
 from backend.blobs import BlobNotFound, LocalBlobStore
 from backend.db import get_session_factory
-from backend.services.labels import command_key
 from backend.settings import get_settings
+from core.labels import command_key
 
 MAX_SNAPSHOTS = 400
 

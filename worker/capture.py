@@ -12,8 +12,8 @@ from backend import models
 from backend.db import get_session_factory
 from backend.deps import get_blob_store
 from backend.services.snapshots import create_snapshot
+from core.robots import world_of_kind
 from worker.base_models import BaseModelMissing, find_base
-from worker.household import world_of
 from worker.pipeline import _domain
 
 
@@ -27,7 +27,7 @@ def capture_views(robot_id: int, household_id: int, count: int, task_id: str | N
             raise ValueError(f"robot {robot_id} of household {household_id} does not exist")
         if not models.RobotKind(robot.kind).simulated:
             raise ValueError(f"robot {robot_id} is a real {robot.kind}; it uploads its own frames")
-        world = world_of(robot)
+        world = world_of_kind(robot.kind)
         settings = robot.settings or {}
         image_size = int(settings.get("image_size") or _base_image_size(world))
         domain = _domain(settings)

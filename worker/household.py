@@ -1,9 +1,10 @@
 """A household's training data, read from the database and the blob store: camera images, the household's
 recorded commands as MFCC features, and the triplets their pair labels yield.
 
-The triplet rule is the backend's (`backend.services.labels`): a snapshot with at least one *is* clip and one
-*is not* clip gives |is| × |is not| triplets; a snapshot answered *is not* for every command is "nothing I
-said" and gives (image, silence, clip) for each *is not* clip. Nothing else is ever used as supervision.
+The triplet rule is the household's (`core.labels`): a snapshot with at least one *is* clip and one *is not*
+clip gives |is| × |is not| triplets; a snapshot answered *is not* for every command is "nothing I said" and
+gives (image, silence, clip) for each *is not* clip. Nothing else is ever used as supervision; the answers are
+read as the API's triplet statistics read them (`backend.services.triplets.household_answers`).
 """
 
 import io
@@ -17,25 +18,15 @@ from sqlalchemy.orm import Session
 
 from backend import models
 from backend.blobs import BlobStore
-from backend.services.labels import command_key
+from backend.services.triplets import household_answers
+from core.labels import SILENCE_CLIP, Verdict, derive_triplets
 
-SILENCE_ROW = -1
+SILENCE_ROW = -1  # the positive clip row of a "nothing I said" triplet
 UNKNOWN_INTENT = -1
-
-WORLD_OF_KIND = {
-    models.RobotKind.KUKA_SIM: "kuka",
-    models.RobotKind.TURTLEBOT_SIM: "turtlebot",
-    models.RobotKind.KINOVA_SIM: "kinova",
-    models.RobotKind.KINOVA_REAL: "kinova",  # the real arm's simulated twin: where its policy is evaluated
-}
 
 
 class TooFewTriplets(ValueError):
     """Refused before any training: the labels do not give enough triplets."""
-
-
-def world_of(robot: models.Robot) -> str:
-    return WORLD_OF_KIND[models.RobotKind(robot.kind)]
 
 
 @dataclass
@@ -59,22 +50,6 @@ class HouseholdData:
         return self.triplets[self.held_out]
 
 
-def derive_triplets(
-    answers: dict[int, list[tuple[int, str]]], clip_commands: dict[int, str]
-) -> list[tuple[int, int, int]]:
-    """(snapshot id, positive clip id or SILENCE_ROW, negative clip id) from each snapshot's answers."""
-    all_commands = set(clip_commands.values())
-    triplets = []
-    for snapshot_id, pairs in answers.items():
-        positives = [clip for clip, verdict in pairs if verdict == models.Verdict.IS]
-        negatives = [clip for clip, verdict in pairs if verdict == models.Verdict.IS_NOT]
-        if positives and negatives:
-            triplets += [(snapshot_id, p, n) for p in positives for n in negatives]
-        elif negatives and {clip_commands[c] for c in negatives} >= all_commands:
-            triplets += [(snapshot_id, SILENCE_ROW, n) for n in negatives]
-    return sorted(triplets)
-
-
 def load_household(
     session: Session,
     blobs: BlobStore,
@@ -94,20 +69,8 @@ def load_household(
             .order_by(models.Clip.id)
         )
     )
-    clip_commands = {clip.id: command_key(clip.id, clip.name) for clip in clips}
-    rows = session.execute(
-        select(models.Label.snapshot_id, models.Label.clip_id, models.Label.verdict)
-        .join(models.Snapshot, models.Snapshot.id == models.Label.snapshot_id)
-        .where(
-            models.Label.household_id == robot.household_id,
-            models.Snapshot.robot_id == robot.id,
-            models.Snapshot.deleted_at.is_(None),
-        )
-    ).all()
-    answers: dict[int, list[tuple[int, str]]] = defaultdict(list)
-    for snapshot_id, clip_id, verdict in rows:
-        if clip_id in clip_commands:
-            answers[snapshot_id].append((clip_id, verdict))
+    household = household_answers(session, robot.household_id, robot.id)
+    answers, clip_commands = household.answers, household.clip_commands
     triplet_ids = derive_triplets(answers, clip_commands)
     if len(triplet_ids) < max(min_triplets, 2):
         needed = max(min_triplets, 2)
@@ -128,7 +91,7 @@ def load_household(
     features = np.stack([features_from_bytes(blobs.get(clip.wav_key), feature_kind) for clip in clips])
     triplets = np.array(
         [
-            (snapshot_row[s], SILENCE_ROW if p == SILENCE_ROW else clip_row[p], clip_row[n])
+            (snapshot_row[s], SILENCE_ROW if p == SILENCE_CLIP else clip_row[p], clip_row[n])
             for s, p, n in triplet_ids
         ],
         dtype=np.int64,
@@ -184,7 +147,7 @@ def _infer_clip_intents(
         if heard < 0:
             continue
         for clip_id, verdict in pairs:
-            if verdict == models.Verdict.IS and clip_id in clip_row:
+            if verdict == Verdict.IS and clip_id in clip_row:
                 votes[commands[clip_row[clip_id]]][heard] += 1
     return np.array(
         [votes[command].most_common(1)[0][0] if votes[command] else UNKNOWN_INTENT for command in commands],

@@ -30,9 +30,10 @@ from backend.services import model_versions
 from backend.services.runs import publish_run
 from backend.settings import get_settings
 from core.paths import data_subdir
+from core.robots import world_of_kind
 from worker.base_models import BaseModelMissing, find_base
 from worker.evaluation import ModelScore, decide, score_model, summarise_scores
-from worker.household import HouseholdData, TooFewTriplets, load_household, world_of
+from worker.household import HouseholdData, TooFewTriplets, load_household
 from worker.lease import LEASE_S, RunLease
 from worker.progress import STAGE_WEIGHTS, Cancelled, Progress, finite
 from worker.var_stage import Diverged
@@ -200,7 +201,7 @@ def _prepare(
     with get_session_factory()() as session:
         run = session.get_one(models.Run, run_id)
         robot = session.get_one(models.Robot, run.robot_id)
-        world = world_of(robot)
+        world = world_of_kind(robot.kind)
         if "parent_id" not in state.data:
             state.data["parent_id"] = _active_or_base(session, robot, world).id
             state.save()
@@ -421,7 +422,9 @@ def _compact_policy(checkpoint: Path, out: Path) -> None:
 
     payload = read_policy_checkpoint(checkpoint)
     kept = {
-        k: payload[k] for k in ("kind", "config", "policy_config", "policy", "label_counts") if k in payload
+        k: payload[k]
+        for k in ("kind", "format_version", "config", "policy_config", "policy", "label_counts")
+        if k in payload
     }
     torch.save(kept, out)
 

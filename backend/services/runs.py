@@ -11,8 +11,8 @@ from sqlalchemy.orm import Session
 from backend import broker, models
 from backend.errors import Conflict, Invalid, NotFound, Unavailable
 from backend.schemas import RunCreate, RunParams, RunPublic
-from backend.services.labels import triplet_stats
 from backend.services.robots import get_robot
+from backend.services.triplets import triplet_stats
 
 PRESETS: dict[str, dict[str, Any]] = {
     "quick": dict(

@@ -30,7 +30,7 @@ def test_the_triplet_count_agrees_with_the_api_and_too_few_are_refused_with_how_
 ) -> None:
     from backend.db import get_session_factory
     from backend.deps import get_blob_store
-    from backend.services.labels import triplet_stats
+    from backend.services.triplets import triplet_stats
     from worker.household import load_household
 
     robot_id = household.new_robot("count-arm", views=12)

@@ -6,7 +6,7 @@ from pydantic import BaseModel
 from backend import models, schemas
 from backend.deps import CallerDep, SessionDep
 from backend.schemas import Offset, PathId, QueryId
-from backend.services import labels, robots
+from backend.services import labels, pairs, robots, triplets
 
 router = APIRouter(tags=["labels"])
 
@@ -24,7 +24,7 @@ def next_pair(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) 
     between two commands."""
     if robot_id is not None:
         robots.get_robot(session, caller.household_id, robot_id)
-    choice = labels.next_pair(session, caller.user_id, caller.household_id, robot_id)
+    choice = pairs.next_pair(session, caller.user_id, caller.household_id, robot_id)
     if choice is None:
         return _json(
             schemas.NextPair(
@@ -95,7 +95,7 @@ def delete_label(label_id: PathId, caller: CallerDep, session: SessionDep) -> No
 
 @router.get("/triplets/stats", response_model=schemas.TripletStats)
 def triplet_stats(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) -> schemas.TripletStats:
-    """How many triplets the labels yield, per command and per member (see backend/services/labels.py)."""
+    """How many triplets the labels yield, per command and per member (the rule is core/labels.py)."""
     if robot_id is not None:
         robots.get_robot(session, caller.household_id, robot_id)
-    return labels.triplet_stats(session, caller.household_id, robot_id)
+    return triplets.triplet_stats(session, caller.household_id, robot_id)
