@@ -24,23 +24,27 @@ each tier's clips the VAR embeds nearest their own command and the success split
 against ones the policy failed to reach). Each episode (goal clip, layout seed, end distance) stays in the run
 directory as bench-eval-<tier>.json. A row run again under an earlier tag becomes the row's record again.
 Success-vs-steps curves: `bench/results/reproduce_<world>-<sounds>.png`. Never tuned on test voices:
-evaluation only reads the unheard tiers, training only the train split.
+evaluation only reads the unheard tiers, training only the train split. Each record also holds the machine and
+the load average before and after its run; paths are relative to the data directory or the repository.
+
+The printed table (stored under "table") gives each row as the mean and spread over the seeds of its recipe
+and lists every seed. This script is the only writer of the JSON: records are moved, relabelled or dropped
+after their runs with `bench/reproduce.py records list|move|relabel|drop|hand-edit|relativise-paths --why …`,
+and every such edit is logged in the file under "edits" (see bench/reproduce_records.py).
 """
 
 import argparse
-import json
-import os
 import subprocess
 import sys
 import time
 from dataclasses import replace
 from pathlib import Path
 
-from rich.console import Console
-from rich.table import Table
+from conditions import Conditions, describe
+from reproduce_records import RESULTS, load_results, records_command, save_results
+from reproduce_table import print_table
+from result_files import relative_path, resolve
 
-RESULTS = Path(__file__).resolve().parent / "results"
-OUTPUT = RESULTS / "reproduce.json"
 WORLD_SOUNDS = {
     "kuka-wordset": ("kuka", "wordset"),
     "kuka-notes": ("kuka", "notes"),
@@ -186,25 +190,15 @@ def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
     return final
 
 
-def load_results() -> dict:
-    return json.loads(OUTPUT.read_text()) if OUTPUT.exists() else {"benchmark": "reproduce", "rows": {}}
-
-
-def save_results(results: dict) -> None:
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    temporary = OUTPUT.with_suffix(".json.tmp")
-    temporary.write_text(json.dumps(results, indent=2))
-    os.replace(temporary, OUTPUT)
-
-
 def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     from core.paths import data_subdir
     from learning.rl.baselines import method_config, needs_var
     from learning.rl.evaluate import evaluate, save_eval
+    from learning.rl.frozen_var import load_frozen_var
     from learning.rl.plots import plot_run, read_metrics
     from learning.rl.ppo import load_policy
     from learning.rl.rewards import corpus_bank
-    from learning.rl.run import load_frozen_var, train_run
+    from learning.rl.run import train_run
     from learning.sounds import load_corpus
 
     row, method = key.split(":")
@@ -212,8 +206,9 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     ensure_corpus(sounds)
     var_path = ensure_var(world, sounds, args) if needs_var(method) else None
     image_size = args.image_size
-    if image_size is None and var_path is not None:
-        image_size = int(load_frozen_var(var_path).config.image_size)
+    loaded_var = load_frozen_var(var_path)  # read once, for the run and its evaluation
+    if image_size is None and loaded_var is not None:
+        image_size = loaded_var.image_size
     config = method_config(
         method,
         world=world,
@@ -229,6 +224,7 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         encoders = ensure_encoders(world, sounds, config.policy_image_size, args)
         config = replace(config, init_encoders=str(encoders))
     run_dir = data_subdir("bench", "reproduce", "rl", args.tag, f"{row}-{method}")
+    conditions = Conditions()
     started = time.monotonic()
 
     def on_update(record: dict) -> bool:
@@ -241,12 +237,12 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
             save_results(results)
         return args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
 
-    summary = train_run(config, run_dir, var_path, resume=args.resume, on_update=on_update)
+    summary = train_run(config, run_dir, loaded_var, resume=args.resume, on_update=on_update)
     records = read_metrics(run_dir)
     wall = sum(config.batch_size / r["sps"] for r in records)
     complete = summary["env_steps"] >= config.num_updates * config.batch_size
     policy, payload = load_policy(run_dir / "checkpoint.pt")
-    var = load_frozen_var(var_path)
+    var = loaded_var.model if loaded_var is not None else None
     corpus = load_corpus(sounds)
     understood = goal_clips_understood(var, corpus) if var is not None else None
     evaluations = {}
@@ -282,10 +278,11 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         if understood is None
         else {t: float(h.mean()) for t, h in understood.items()},
         "paper_success": PAPER[row].get(method.replace("-current-sound", "")),
-        "var_checkpoint": None if var_path is None else str(var_path),
-        "run_dir": str(run_dir),
-        "curves": str(run_dir / "curves.png"),
+        "var_checkpoint": None if var_path is None else relative_path(var_path),
+        "run_dir": relative_path(run_dir),
+        "curves": relative_path(run_dir / "curves.png"),
         "config": payload["config"],
+        **conditions.finish(),
     }
 
 
@@ -348,8 +345,9 @@ def curves(results: dict) -> None:
     by_row: dict[str, dict] = {}
     experiments = results.get("experiments", {}).values()
     for record in [*results.get("earlier_runs", []), *results["rows"].values(), *experiments]:
-        if "success_curve" not in record and Path(record.get("run_dir", ""), "metrics.jsonl").is_file():
-            record["success_curve"] = success_curve(Path(record["run_dir"]))
+        run_dir = resolve(record["run_dir"]) if "run_dir" in record else None
+        if "success_curve" not in record and run_dir is not None and (run_dir / "metrics.jsonl").is_file():
+            record["success_curve"] = success_curve(run_dir)
         label = f"{record.get('method')} ({record.get('tag')})"
         if "success_curve" in record:
             by_row.setdefault(record["row"], {})[label] = record["success_curve"]
@@ -359,29 +357,14 @@ def curves(results: dict) -> None:
         path = plot_success_curves(
             row_curves, RESULTS / f"reproduce_{row}.png", title=f"{row}: success vs env steps"
         )
-        results.setdefault("curves", {})[row] = str(path)
-
-
-def print_table(results: dict) -> None:
-    table = Table(title="Table I on this machine (success %, unheard tiers)")
-    for column in ("row", "method", "status", "env steps", "steps/s", "success by tier", "paper", "labels"):
-        table.add_column(column)
-    experiments = [
-        {**r, "row": f"{r['row']} (experiment {r['tag']})"} for r in results.get("experiments", {}).values()
-    ]
-    for record in [*results["rows"].values(), *experiments]:
-        if "success" not in record:
-            continue
-        tiers = ", ".join(f"{k}: {100 * v:.1f}" for k, v in record["success"].items())
-        table.add_row(
-            record["row"], record["method"], record["status"], f"{record['env_steps']:,}",
-            f"{record['steps_per_s']:.0f}", tiers, str(record["paper_success"]),
-            f"{record['labels']['total']:,}",
-        )  # fmt: skip
-    Console().print(table)
+        results.setdefault("curves", {})[row] = relative_path(path)
 
 
 def main() -> None:
+    if sys.argv[1:2] == ["records"]:
+        records_command(sys.argv[2:], print_table)
+        return
+    conditions = Conditions()
     args = parse_arguments()
     keys = [k.strip() for k in args.rows.split(",") if k.strip()]
     for key in keys:
@@ -410,8 +393,9 @@ def main() -> None:
         store[entry] = run_row(key, args, results)
         save_results(results)
     curves(results)
-    save_results(results)
     print_table(results)
+    save_results(results)
+    print(describe(conditions.finish()))
 
 
 if __name__ == "__main__":

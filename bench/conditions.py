@@ -1,0 +1,80 @@
+"""The conditions a bench measured under, written beside its figures and printed with its table: the machine
+(CPU cores, memory, torch threads, Python and torch versions) and the load average from /proc/loadavg just
+before and just after the measurement. Other people's jobs may share the machine; the load average says how
+much, so two runs are compared only at a similar load.
+
+    conditions = Conditions()        # reads the load average before
+    ...                              # the measurement
+    result.update(conditions.finish())  # {"machine": ..., "load_average": {"before": ..., "after": ...}}
+    console.print(describe(result))
+"""
+
+import os
+import platform
+import sys
+from importlib import metadata
+from pathlib import Path
+
+LOADAVG = Path("/proc/loadavg")
+MEMINFO = Path("/proc/meminfo")
+
+
+def load_average() -> dict[str, float]:
+    """Runnable (and uninterruptible) processes averaged over the last 1, 5 and 15 minutes."""
+    one, five, fifteen = LOADAVG.read_text().split()[:3]
+    return {"1_min": float(one), "5_min": float(five), "15_min": float(fifteen)}
+
+
+def memory_gib() -> float:
+    for line in MEMINFO.read_text().splitlines():
+        if line.startswith("MemTotal:"):
+            return round(int(line.split()[1]) / 2**20, 1)
+    raise RuntimeError(f"no MemTotal in {MEMINFO}")
+
+
+def torch_threads() -> int | None:
+    """The bench's torch thread count, or None when it never loaded torch (not imported here for that)."""
+    torch = sys.modules.get("torch")
+    return None if torch is None else torch.get_num_threads()
+
+
+def installed_version(package: str) -> str | None:
+    try:
+        return metadata.version(package)
+    except metadata.PackageNotFoundError:
+        return None
+
+
+def machine() -> dict[str, object]:
+    return {
+        "cpu_cores": os.cpu_count(),
+        "memory_gib": memory_gib(),
+        "torch_threads": torch_threads(),
+        "python": platform.python_version(),
+        "torch": installed_version("torch"),
+        "platform": platform.platform(),
+    }
+
+
+class Conditions:
+    """Reads the load average when made; `finish()` reads it again and describes the machine (at the end, so
+    the torch threads are the ones the measurement used)."""
+
+    def __init__(self) -> None:
+        self.load_before = load_average()
+
+    def finish(self) -> dict[str, object]:
+        return {"machine": machine(), "load_average": {"before": self.load_before, "after": load_average()}}
+
+
+def describe(record: dict) -> str:
+    """One line for under a bench's table, from a record holding `Conditions.finish()`'s fields."""
+    found = record["machine"]
+    threads = found["torch_threads"]
+    load = record["load_average"]
+    return (
+        f"{found['cpu_cores']} CPU cores, {found['memory_gib']} GiB, "
+        f"{'no torch' if threads is None else f'{threads} torch threads'}, "
+        f"Python {found['python']}, torch {found['torch']}; load average (1 min) "
+        f"{load['before']['1_min']:.1f} before, {load['after']['1_min']:.1f} after"
+    )

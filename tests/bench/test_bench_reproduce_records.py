@@ -1,0 +1,118 @@
+"""bench/reproduce.py is the only writer of reproduce.json: records are moved, relabelled and dropped by its
+`records` command, each edit logged in the file; its table gives each recipe's mean and spread over seeds and
+lists every seed."""
+
+import json
+import shlex
+
+import pytest
+import reproduce_records
+from reproduce_table import print_table, table_lines
+
+
+def run_record(tag: str, seed: int, easy: float, var: str = "data/var/a/final.pt") -> dict:
+    return {
+        "row": "kuka-wordset",
+        "method": "var",
+        "tag": tag,
+        "status": "complete",
+        "env_steps": 1000,
+        "success": {"unheard-easy": easy, "unheard-real-voices": easy / 2},
+        "labels": {"total": 10},
+        "paper_success": 97.0,
+        "var_checkpoint": var,
+        "config": {"seed": seed, "total_steps": 1000, "torch_threads": seed, "goal_match": None},
+    }
+
+
+@pytest.fixture
+def stored(tmp_path, monkeypatch):
+    """A reproduce.json in a temporary place, and a way to run `records …` on it and read it back."""
+    output = tmp_path / "reproduce.json"
+    monkeypatch.setattr(reproduce_records, "OUTPUT", output)
+    results = {
+        "benchmark": "reproduce",
+        "rows": {"kuka-wordset:var": run_record("seed2", 2, 0.9)},
+        "earlier_runs": [run_record("seed1", 1, 0.3)],
+        "interrupted_runs": [{"row": "kuka-wordset:var", "tag": "fusion", "quick_check": {"success": 0.5}}],
+    }
+    output.write_text(json.dumps(results))
+
+    def records(*arguments: str) -> dict:
+        reproduce_records.records_command(list(arguments), print_table)
+        return json.loads(output.read_text())
+
+    return records
+
+
+def test_moving_a_run_into_the_table_sends_the_row_it_replaces_to_earlier_runs_and_logs_it(stored):
+    results = stored("move", "earlier_runs/0", "--to", "rows", "--why", "seed 1 is the recipe's first run")
+    assert results["rows"]["kuka-wordset:var"]["tag"] == "seed1"
+    assert [r["tag"] for r in results["earlier_runs"]] == ["seed2"]
+    [edit] = results["edits"]
+    assert edit["why"] == "seed 1 is the recipe's first run"
+    assert edit["what"].startswith("moved earlier_runs/0 (kuka-wordset:var, tag seed1, seed 1, complete)")
+    assert "went to earlier_runs" in edit["what"]
+    assert shlex.split(edit["command"]) == [
+        "bench/reproduce.py", "records", "move", "earlier_runs/0", "--to", "rows",
+        "--why", "seed 1 is the recipe's first run",
+    ]  # fmt: skip
+    assert edit["when"].endswith("Z")
+
+
+def test_a_hand_made_record_is_relabelled_into_the_benchs_shape_then_moved(stored):
+    results = stored(
+        "relabel", "interrupted_runs/0", "--set", "row=kuka-wordset", "--set", "method=var",
+        "--set", "status=interrupted", "--why", "the bench's own fields",
+    )  # fmt: skip
+    assert results["interrupted_runs"][0]["method"] == "var"
+    assert 'status: null -> "interrupted"' in results["edits"][0]["what"]
+    results = stored("move", "interrupted_runs/0", "--to", "experiments", "--why", "an experiment")
+    assert "interrupted_runs" not in results
+    assert results["experiments"]["kuka-wordset:var (fusion)"]["tag"] == "fusion"
+    results = stored("relabel", "experiments/kuka-wordset:var (fusion)", "--set", "tag=fusion2", "--why", "x")
+    assert list(results["experiments"]) == ["kuka-wordset:var (fusion2)"]
+    assert len(results["edits"]) == 3
+
+
+def test_dropping_a_field_keeps_the_record_and_logs_what_went(stored):
+    results = stored("drop", "interrupted_runs/0", "--field", "quick_check", "--why", "not the protocol")
+    assert results["interrupted_runs"][0] == {"row": "kuka-wordset:var", "tag": "fusion"}
+    assert results["edits"][0]["what"].startswith("dropped field quick_check of interrupted_runs/0")
+
+
+def test_an_edit_that_cannot_be_made_changes_nothing(stored, tmp_path):
+    before = (tmp_path / "reproduce.json").read_text()
+    with pytest.raises(SystemExit, match="the record needs 'row'"):
+        stored("move", "interrupted_runs/0", "--to", "rows", "--why", "x")
+    with pytest.raises(SystemExit, match="no record"):
+        stored("drop", "rows/turtlebot-notes:var", "--why", "x")
+    assert (tmp_path / "reproduce.json").read_text() == before
+
+
+def test_a_hand_edit_found_in_git_is_logged_without_changing_a_record(stored):
+    results = stored("hand-edit", "abc1234", "--what", "moved a run by hand", "--why", "the log covers it")
+    what = results["edits"][0]["what"]
+    assert what == "edited by hand outside the bench in commit abc1234: moved a run by hand"
+    assert results["rows"]["kuka-wordset:var"]["tag"] == "seed2"
+
+
+def test_each_line_of_the_table_is_one_recipe_over_its_seeds_with_every_seed_listed(stored):
+    results = stored("table")
+    [line] = results["table"]["lines"]
+    assert [(s["seed"], s["tag"], s["record"]) for s in line["seeds"]] == [
+        (1, "seed1", "earlier_runs/0"),
+        (2, "seed2", "rows/kuka-wordset:var"),
+    ]
+    assert line["success_mean"]["unheard-easy"] == pytest.approx(0.6)
+    assert line["success_spread"]["unheard-easy"] == pytest.approx(0.4242640687)  # sample sd of 0.3, 0.9
+
+
+def test_a_run_with_another_var_is_another_recipe_and_one_seed_has_no_spread():
+    results = {
+        "rows": {"kuka-wordset:var": run_record("seed2", 2, 0.9)},
+        "earlier_runs": [run_record("other-var", 1, 0.3, var="data/var/b/final.pt")],
+    }
+    [line] = table_lines(results)
+    assert [s["tag"] for s in line["seeds"]] == ["seed2"]
+    assert line["success_spread"] == {"unheard-easy": None, "unheard-real-voices": None}
