@@ -49,6 +49,7 @@ class Progress:
     latest: dict[str, Any] = field(default_factory=dict)
     curves: dict[str, list[dict[str, Any]]] = field(default_factory=dict)
     stage_seconds: dict[str, float] = field(default_factory=dict)
+    completed: set[str] = field(default_factory=set)
     _stage_started: float = field(default_factory=time.monotonic)
     _run_started: float = field(default_factory=time.monotonic)
     _last_write: float = 0.0
@@ -58,16 +59,16 @@ class Progress:
         return STAGE_WEIGHTS[self.kind]
 
     def overall(self) -> float:
-        done = 0.0
-        for name, weight in self.weights:
-            if name == self.stage:
-                return min(1.0, done + weight * min(max(self.fraction, 0.0), 1.0))
-            done += weight
-        return min(1.0, done)
+        """The finished stages' weights plus the current stage's share; a stage outside the table (starting,
+        promoting) adds nothing of its own."""
+        done = sum(weight for name, weight in self.weights if name in self.completed)
+        current = dict(self.weights).get(self.stage, 0.0) if self.stage not in self.completed else 0.0
+        return min(1.0, done + current * min(max(self.fraction, 0.0), 1.0))
 
     def restore(self, completed: dict[str, Any]) -> None:
         """After a resume: stages finished before the crash count as done."""
         for name, result in completed.items():
+            self.completed.add(name)
             self.stage_seconds[name] = float(result.get("seconds", 0.0))
             if result.get("curve"):
                 self.curves[name] = result["curve"]
@@ -137,6 +138,7 @@ class Progress:
         return self.cancel_requested
 
     def finish_stage(self) -> float:
-        """Close the current stage; returns its wall time in seconds."""
+        """Close the current stage (it counts as done); returns its wall time in seconds."""
         self._close_stage()
+        self.completed.add(self.stage)
         return self.stage_seconds.get(self.stage, 0.0)
