@@ -69,6 +69,8 @@ class Conditions:
 
 def describe(record: dict) -> str:
     """One line for under a bench's table, from a record holding `Conditions.finish()`'s fields."""
+    if not isinstance(record.get("load_average"), dict) or "before" not in record["load_average"]:
+        return "machine and load average not recorded (measured before the bench recorded them)"
     found = record["machine"]
     threads = found["torch_threads"]
     load = record["load_average"]

@@ -8,9 +8,6 @@ with how many pixels the two differ in. Prints a table and writes bench/results/
 """
 
 import argparse
-import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -23,6 +20,8 @@ from rich.table import Table
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import gymnasium as gym
+from conditions import Conditions, describe
+from result_files import write_result
 
 import sim
 from sim.vector import make_vector_env
@@ -120,7 +119,7 @@ def main() -> None:
     single_steps, vector_steps = (60, 25) if args.quick else (300, 120)
     console = Console()
     clock = RenderClock()
-    load_before = os.getloadavg()
+    conditions = Conditions()
 
     configs = [(world, size, {}) for world in available_worlds(console) for size in sizes]
     if "kuka" in sim.WORLDS:
@@ -140,7 +139,8 @@ def main() -> None:
         )
     pixels = fast_versus_full_pixels(3 if args.quick else 10)
 
-    table = Table(title=f"env steps/s ({os.cpu_count()} CPUs; load average {load_before[0]:.1f} at start)")
+    measured = conditions.finish()
+    table = Table(title="env steps/s")
     for column in ("world", "px", "1 process", "step ms", "render share", f"{NUM_ENVS} processes", "RSS/env"):
         table.add_column(column, justify="left" if column == "world" else "right")
     for row in rows:
@@ -157,28 +157,19 @@ def main() -> None:
     console.print(
         f"simplified vs full Kuka arm: {100 * pixels:.2f} % of pixels differ by more than 32 levels"
     )
-
-    load_after = os.getloadavg()
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(
-        json.dumps(
-            {
-                "benchmark": "env_speed",
-                "quick": args.quick,
-                "machine": {
-                    "cpus": os.cpu_count(),
-                    "platform": platform.platform(),
-                    "python": sys.version.split()[0],
-                },
-                "load_average": {"start": load_before, "end": load_after},
-                "num_envs": NUM_ENVS,
-                "steps": {"single": single_steps, "vector_per_env": vector_steps},
-                "results": rows,
-                "kuka_fast_vs_full_pixels_over_32_levels": pixels,
-                "note": "measured on a shared machine; compare runs only at a similar load average",
-            },
-            indent=2,
-        )
+    console.print(describe(measured))
+    write_result(
+        RESULTS,
+        {
+            "benchmark": "env_speed",
+            "quick": args.quick,
+            **measured,
+            "num_envs": NUM_ENVS,
+            "steps": {"single": single_steps, "vector_per_env": vector_steps},
+            "results": rows,
+            "kuka_fast_vs_full_pixels_over_32_levels": pixels,
+            "note": "compare runs only at a similar load average",
+        },
     )
     console.print(f"wrote {RESULTS}")
 

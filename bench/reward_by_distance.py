@@ -18,6 +18,8 @@ import gymnasium
 import matplotlib
 import numpy as np
 import torch
+from conditions import Conditions, describe
+from result_files import write_result
 from rich.console import Console
 from rich.table import Table
 from tqdm import tqdm
@@ -107,7 +109,7 @@ def binned(steps: np.ndarray, bins: list[float]) -> list[dict]:
     return rows
 
 
-def report(args: argparse.Namespace, profile: dict[str, list[dict]]) -> None:
+def report(args: argparse.Namespace, profile: dict[str, list[dict]], measured: dict) -> None:
     table = Table(title=f"VAR reward by distance to the target: {args.world}/{args.sounds}")
     for column in ("policy", "distance (m)", "steps", "reward mean ± std", "target in view"):
         table.add_column(column, justify="right")
@@ -118,6 +120,7 @@ def report(args: argparse.Namespace, profile: dict[str, list[dict]]) -> None:
             in_view = f"{row['target_in_view']:.2f}"
             table.add_row(policy, f"{low:.2f}–{high:.2f}", str(row["steps"]), reward, in_view)
     Console().print(table)
+    print(describe(measured))
 
 
 def plot(args: argparse.Namespace, profile: dict[str, list[dict]]) -> Path:
@@ -140,7 +143,7 @@ def plot(args: argparse.Namespace, profile: dict[str, list[dict]]) -> Path:
     return path
 
 
-def save(args: argparse.Namespace, profile: dict[str, list[dict]], png: Path) -> None:
+def save(args: argparse.Namespace, profile: dict[str, list[dict]], png: Path, measured: dict) -> None:
     results = json.loads(RESULT.read_text()) if RESULT.exists() else {}
     results[f"{args.world}-{args.sounds}"] = {
         "var": str(args.var),
@@ -149,8 +152,9 @@ def save(args: argparse.Namespace, profile: dict[str, list[dict]], png: Path) ->
         "goal_split": "train",
         "profile": profile,
         "png": str(png.relative_to(ROOT)),
+        **measured,
     }
-    RESULT.write_text(json.dumps(results, indent=2))
+    write_result(RESULT, results)
     print(f"wrote {RESULT.relative_to(ROOT)} and {png.relative_to(ROOT)}")
 
 
@@ -158,12 +162,14 @@ def main() -> None:
     from learning.var.checkpoint import load_var
 
     args = parse_args()
+    conditions = Conditions()
     torch.set_num_threads(1)
     var = load_var(args.var).eval()
     steps = collect(args, var)
+    measured = conditions.finish()
     profile = {policy: binned(rows, DISTANCE_BINS_M[args.world]) for policy, rows in steps.items()}
-    report(args, profile)
-    save(args, profile, plot(args, profile))
+    report(args, profile, measured)
+    save(args, profile, plot(args, profile), measured)
 
 
 if __name__ == "__main__":

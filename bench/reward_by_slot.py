@@ -8,12 +8,13 @@ command the policy has little to climb towards. Seconds on a CPU.
 """
 
 import argparse
-import json
 from pathlib import Path
 
 import gymnasium
 import numpy as np
 import torch
+from conditions import Conditions, describe
+from result_files import write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -47,6 +48,7 @@ def main() -> None:
     from sim.oracle import oracle_action
 
     args = parse_args()
+    conditions = Conditions()
     torch.set_num_threads(1)
     var = load_var(args.var).eval()
     centroids = command_centroids(var, args.sounds, args.split)
@@ -62,7 +64,7 @@ def main() -> None:
                 observation, *_ = env.step(oracle_action(env.unwrapped))
             over_slot[slot] += embed_and_score(var, observation["image"], centroids) / args.episodes
     env.close()
-    report(args, over_slot, at_reset)
+    report(args, over_slot, at_reset, conditions.finish())
 
 
 def embed_and_score(var: torch.nn.Module, image: np.ndarray, centroids: np.ndarray) -> np.ndarray:
@@ -71,7 +73,7 @@ def embed_and_score(var: torch.nn.Module, image: np.ndarray, centroids: np.ndarr
     return centroids @ embedding
 
 
-def report(args: argparse.Namespace, over_slot: np.ndarray, at_reset: np.ndarray) -> None:
+def report(args: argparse.Namespace, over_slot: np.ndarray, at_reset: np.ndarray, measured: dict) -> None:
     table = Table(title=f"f_I · f_S with the gripper over each slot ({args.split} commands)")
     table.add_column("gripper over")
     for k in range(len(at_reset)):
@@ -80,19 +82,19 @@ def report(args: argparse.Namespace, over_slot: np.ndarray, at_reset: np.ndarray
         table.add_row(f"slot {slot}", *(f"{v:+.2f}" for v in row))
     table.add_row("nothing (reset)", *(f"{v:+.2f}" for v in at_reset))
     Console().print(table)
-    RESULT.write_text(
-        json.dumps(
-            {
-                "var": str(args.var),
-                "sounds": args.sounds,
-                "split": args.split,
-                "episodes_per_slot": args.episodes,
-                "oracle_steps": args.steps,
-                "reward_over_slot": over_slot.round(4).tolist(),
-                "reward_at_reset": at_reset.round(4).tolist(),
-            },
-            indent=2,
-        )
+    print(describe(measured))
+    write_result(
+        RESULT,
+        {
+            "var": str(args.var),
+            "sounds": args.sounds,
+            "split": args.split,
+            "episodes_per_slot": args.episodes,
+            "oracle_steps": args.steps,
+            "reward_over_slot": over_slot.round(4).tolist(),
+            "reward_at_reset": at_reset.round(4).tolist(),
+            **measured,
+        },
     )
     print(f"wrote {RESULT.relative_to(ROOT)}")
 

@@ -9,7 +9,6 @@ Writes bench/results/sounds.json.
 """
 
 import json
-import platform
 import shutil
 import tempfile
 import time
@@ -19,6 +18,8 @@ from typing import Annotated
 import numpy as np
 import torch
 import typer
+from conditions import Conditions, describe
+from result_files import write_result
 from rich.console import Console
 from rich.table import Table
 from torch import nn
@@ -65,6 +66,7 @@ def main(
     sets = list(SET_NAMES if all_sets else DEFAULT_SETS)
     keep = root is not None
     root = root or Path(tempfile.mkdtemp(prefix="bench-sounds-", dir=data_dir()))
+    conditions = Conditions()
     try:
         torch.set_num_threads(1)  # the build: parallel renderer threads, tiny MFCC ops
         started = time.perf_counter()
@@ -80,15 +82,14 @@ def main(
         if not keep:
             shutil.rmtree(root, ignore_errors=True)
     result = {
-        "machine": f"{platform.node()}, 2 CPU cores shared with other agents, {threads} torch threads",
+        **conditions.finish(),
         "seed": seed,
         "build": build,
         "features_per_second": features_per_s,
         "sanity_accuracy": sanity,
         "classifier": f"TinyIntentCNN (3 conv), {epochs} epochs, Adam 1e-3, batch 64, feature augmentation",
     }
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(result, indent=2) + "\n")
+    write_result(RESULTS, result)
     _print(console, result)
 
 
@@ -184,6 +185,7 @@ def _print(console: Console, result: dict) -> None:
     for name, accuracy in result["sanity_accuracy"].items():
         sanity.add_row(name, *[f"{accuracy[t]:.3f}" if t in accuracy else "" for t in tiers])
     console.print(sanity)
+    console.print(describe(result))
     console.print(f"written {RESULTS}")
 
 

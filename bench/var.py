@@ -14,6 +14,8 @@ import sys
 import time
 from pathlib import Path
 
+from conditions import Conditions, describe
+from result_files import resolve, write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -40,7 +42,7 @@ def parse_arguments() -> argparse.Namespace:
         "--threads",
         type=int,
         default=1,
-        help="torch threads; on a 2-core machine shared with other jobs 1 is far faster",
+        help="torch threads; on a 2-core machine with other work running 1 is far faster",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
@@ -64,6 +66,7 @@ def run_row(row: str, args: argparse.Namespace) -> dict:
     world, sounds = ROWS[row]
     corpus = load_corpus(sounds)
     size = args.image_size
+    conditions = Conditions()
     training_views = collect_dataset(
         world,
         args.triplets,
@@ -120,7 +123,7 @@ def run_row(row: str, args: argparse.Namespace) -> dict:
         "sphere_png": str(sphere.relative_to(RESULTS.parent.parent)),
         "train_config": json.loads(json.dumps(config.to_dict())),
         "measured": time.strftime("%Y-%m-%d %H:%M"),
-        "note": "2-core CPU shared with other agents' jobs while measured",
+        **conditions.finish(),
     }
 
 
@@ -142,6 +145,7 @@ def run_finetune(row: str, result: dict, args: argparse.Namespace) -> dict:
     world, sounds = ROWS[row]
     corpus = load_corpus(sounds)
     size, shifted = args.image_size, DomainShift.unseen_room()
+    conditions = Conditions()
     new_room = collect_dataset(
         world,
         args.finetune_views,
@@ -189,8 +193,12 @@ def run_finetune(row: str, result: dict, args: argparse.Namespace) -> dict:
             out[name] = {k: accuracy[k] for k in ("triplet_accuracy", "triplet_accuracy_in_view")}
         return out
 
-    outcome = {"views": args.finetune_views, "new_voice": NEW_VOICE, "before": scores(result["checkpoint"])}
-    for label, replay in (("without replay", None), ("with replay", result["training_dataset"])):
+    before = scores(str(resolve(result["checkpoint"])))
+    outcome = {"views": args.finetune_views, "new_voice": NEW_VOICE, "before": before}
+    for label, replay in (
+        ("without replay", None),
+        ("with replay", str(resolve(result["training_dataset"]))),
+    ):
         run_dir = data_subdir(
             "var", "bench", f"{row}-finetune-{args.finetune_views}-{'replay' if replay else 'plain'}"
         )
@@ -211,7 +219,7 @@ def run_finetune(row: str, result: dict, args: argparse.Namespace) -> dict:
             "stopped_early": trained.stopped_early,
             **scores(str(trained.checkpoint)),
         }
-    return outcome
+    return {**outcome, **conditions.finish()}
 
 
 def _pair(scores: dict) -> str:
@@ -233,6 +241,7 @@ def print_finetune_table(row: str, outcome: dict) -> None:
             *(_pair(outcome[label][n]) for n in names),
         )
     Console(width=170).print(table)
+    print(describe(outcome))
 
 
 def print_table(results: dict) -> None:
@@ -279,6 +288,8 @@ def print_table(results: dict) -> None:
             )
             first = False
     Console(width=170).print(table)
+    for row, result in results.items():
+        print(f"{row}: {describe(result)}")
 
 
 def _finished(result: dict | None, args: argparse.Namespace) -> bool:
@@ -299,11 +310,10 @@ def main() -> None:
             args.finetune and _finished(results.get(row), args)
         ):  # a finished row is reused for fine-tuning
             results[row] = run_row(row, args)
-            RESULTS.mkdir(parents=True, exist_ok=True)
-            path.write_text(json.dumps(results, indent=2) + "\n")
+            write_result(path, results)
         if args.finetune:
             results[row]["finetune"] = run_finetune(row, results[row], args)
-            path.write_text(json.dumps(results, indent=2) + "\n")
+            write_result(path, results)
     print_table({row: results[row] for row in rows})
     for row in rows:
         if "finetune" in results[row]:

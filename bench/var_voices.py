@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+from conditions import Conditions, describe
+from result_files import write_result
 from rich.console import Console
 from rich.table import Table
 
@@ -144,20 +146,22 @@ def main() -> None:
         raise SystemExit(f"unknown variant(s) {unknown}; choose from {list(VARIANTS)}")
     corpus = load_corpus(SOUNDS)
     kept, held_out = validation_fold(corpus, args.fold)
+    conditions = Conditions()
     seconds = train_all(variants, kept, args)
     results = json.loads(OUTPUT.read_text()) if OUTPUT.exists() else {"benchmark": "var_voices", "folds": {}}
     results.update(dataset=DATASET, sounds=SOUNDS)
     fold = results["folds"].setdefault(args.fold, {"held_out": held_out, "variants": {}})
+    scores = {name: score(name, corpus, kept, held_out, args) for name in variants}
+    measured = conditions.finish()  # the variants trained side by side, under the same conditions
     for name in variants:
-        record = {**score(name, corpus, kept, held_out, args), "steps": args.steps, "seed": args.seed}
+        record = {**scores[name], "steps": args.steps, "seed": args.seed, **measured}
         if name in seconds:
             record["wall_s_trained_in_parallel"] = seconds[name]
         key = (
             name if (args.steps, args.seed) == (STEPS, SEED) else f"{name}-{args.steps}steps-seed{args.seed}"
         )
         fold["variants"][key] = {**fold["variants"].get(key, {}), **record}
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    OUTPUT.write_text(json.dumps(results, indent=2))
+    write_result(OUTPUT, results)
     print_table(args.fold, fold)
 
 
@@ -178,6 +182,8 @@ def print_table(name: str, fold: dict) -> None:
             str(record["held_out_clips"]),
         )
     Console().print(table)
+    for variant, record in fold["variants"].items():
+        print(f"{variant}: {describe(record)}")
     print(f"written: {OUTPUT}")
 
 
