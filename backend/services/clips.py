@@ -19,10 +19,18 @@ class ClipRejected(ApiError):
         self.status_code = status_code
 
 
+_MARKUP = '<>"'  # never in a real file's name (Windows forbids them); echoing them back would be markup
+
+
 def clean_filename(filename: str | None) -> str:
     """The upload's name is kept for display only; one that tries to be a path is refused outright."""
     if not filename:
         return "recording.wav"
+    if markup := sorted(set(filename) & set(_MARKUP)):
+        raise Invalid(
+            f"the file name contains {' and '.join(repr(c) for c in markup)}, which file names cannot hold; "
+            "rename the file to a plain name like 'go.wav'"
+        )
     if "/" in filename or "\\" in filename or filename in (".", ".."):
         raise Invalid(
             f"the file name {filename!r} contains a folder path; send a plain file name like 'go.wav'"
@@ -30,7 +38,9 @@ def clean_filename(filename: str | None) -> str:
     if any(unicodedata.category(char).startswith("C") for char in filename):
         raise Invalid("the file name contains control characters; send a plain file name like 'go.wav'")
     if len(filename) > 255:
-        raise Invalid("the file name is longer than 255 characters")
+        raise Invalid(
+            "the file name is longer than 255 characters; rename the file to a short name like 'go.wav'"
+        )
     return filename
 
 

@@ -56,10 +56,10 @@ def _mp3_named_wav() -> bytes:
     ("payload", "status", "words"),
     [
         (b"", 422, "empty"),
-        (_mp3_named_wav(), 415, "MP3"),
-        (b"\xff\xfb\x90\x64" + bytes(800), 415, "MP3"),
+        (_mp3_named_wav(), 422, "MP3 file cannot be decoded"),
+        (b"\xff\xfb\x90\x64" + bytes(800), 422, "MP3 file cannot be decoded"),
         (make_png(), 415, "PNG image"),
-        (b"hello, this is text", 415, "not a WAV"),
+        (b"hello, this is text", 415, "not a sound recording"),
         (b"RIFF\x10\x00\x00\x00WAVEjunkjunkjunk", 422, "no audio data"),
         (_lying_wav(), 422, "cut off"),
         (make_wav(60.0), 422, "at most 10 s"),

@@ -22,12 +22,12 @@ def test_resampling_keeps_a_tone_and_removes_what_cannot_be_represented() -> Non
 
 
 def test_a_wav_claiming_more_data_than_it_holds_is_refused() -> None:
-    from backend.audio import AudioRejected, check_declared_length
+    from backend.audio import AudioRejected, check_wav_header
 
     honest = make_wav(1.0)
-    check_declared_length(honest)
+    check_wav_header(honest)
     with pytest.raises(AudioRejected, match="cut off"):
-        check_declared_length(honest[: len(honest) // 2])
+        check_wav_header(honest[: len(honest) // 2])
 
 
 def test_the_normalised_wav_is_16k_mono_16bit() -> None:

@@ -2,7 +2,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, File, Form, Query, Request, Response, UploadFile, status
 
-from backend import models, schemas
+from backend import audio, models, schemas
 from backend.api.ranges import ranged_response
 from backend.deps import BlobsDep, CallerDep, SessionDep, SettingsDep
 from backend.schemas import Offset, PathId, QueryId
@@ -14,7 +14,7 @@ router = APIRouter(prefix="/clips", tags=["clips"])
 
 @router.post("", response_model=schemas.ClipPublic, status_code=status.HTTP_201_CREATED)
 def upload_clip(
-    file: Annotated[UploadFile, File(description="a WAV recording, 0.3–10 s, at most 5 MB")],
+    file: Annotated[UploadFile, File(description=f"a recording ({audio.ACCEPTED}), 0.3–10 s, at most 5 MB")],
     caller: CallerDep,
     session: SessionDep,
     blobs: BlobsDep,
@@ -50,7 +50,10 @@ def get_clip(clip_id: PathId, caller: CallerDep, session: SessionDep) -> models.
 @router.get(
     "/{clip_id}/audio",
     response_class=Response,
-    responses={200: {"content": {"audio/wav": {}}}, 206: {"description": "the requested byte range"}},
+    responses={
+        200: {"content": {media_type: {} for media_type in audio.MEDIA_TYPES.values()}},
+        206: {"description": "the requested byte range"},
+    },
 )
 def clip_audio(
     clip_id: PathId,
@@ -62,8 +65,10 @@ def clip_audio(
 ) -> Response:
     """The normalised 16 kHz mono 16-bit WAV (or, with `original=true`, the bytes as uploaded)."""
     clip = clips.get_clip(session, caller.household_id, clip_id)
-    key = clip.original_key if original else clip.wav_key
-    return ranged_response(request, blobs.get(key), "audio/wav", key)
+    if not original:
+        return ranged_response(request, blobs.get(clip.wav_key), "audio/wav", clip.wav_key)
+    data = blobs.get(clip.original_key)
+    return ranged_response(request, data, audio.media_type_of(data), clip.original_key)
 
 
 @router.patch("/{clip_id}", response_model=schemas.ClipPublic)
