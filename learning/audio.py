@@ -1,8 +1,10 @@
-"""The audio front end: one path from bytes (corpus clip, upload, browser recording) to 100 × 40 MFCC.
+"""The audio path: one way from bytes (corpus clip, upload, browser recording) to a clip's features.
 
 decode (soundfile) → mono → 16 kHz (torchaudio) → trim leading/trailing silence → cut to the window the
-100 frames cover → peak-normalise → MFCC (torchaudio, as the reference) → pad with all-zero frames.
-An all-zero frame means "no sound", so `SILENCE` (all zeros) is the feature of nothing heard.
+feature kind covers → peak-normalise → the sound front end → pad with all-zero frames.
+Front ends (learning.front_ends): `mfcc` (the default, the paper's: 100 × 40 MFCC by torchaudio) and
+`speech-embedding` (frames × 96 of Google's speech_embedding model).
+An all-zero frame means "no sound", so all zeros (`SILENCE` for MFCC) is the feature of nothing heard.
 """
 
 import io
@@ -13,6 +15,8 @@ import numpy as np
 import soundfile
 import torch
 import torchaudio
+
+from learning.front_ends import DEFAULT_FRONT_END, MFCC, check_front_end
 
 SAMPLE_RATE = 16_000
 NUM_FRAMES = 100
@@ -110,21 +114,52 @@ def decode_audio(data: bytes, *, max_duration_s: float = MAX_DURATION_S) -> tupl
     return waveform, duration_s
 
 
-def features_from_bytes(data: bytes, kind: str = "speech") -> np.ndarray:
-    """Bytes of an audio file → float32 (100, 40) MFCC. `kind`: "speech", "phrase" or "sound"."""
-    feature_kind(kind)  # fail on a bad kind before decoding
-    waveform, _ = decode_audio(data)
-    return features_from_waveform(waveform, kind)
-
-
-def features_from_waveform(waveform: np.ndarray, kind: str = "speech") -> np.ndarray:
-    """A decoded 16 kHz mono waveform → float32 (100, 40) MFCC; silence (or nothing) gives `SILENCE`."""
+def feature_shape(kind: str = "speech", front_end: str = DEFAULT_FRONT_END) -> tuple[int, int]:
+    """(frames, values per frame) of every clip's features for this kind and front end."""
     spec = feature_kind(kind)
+    if check_front_end(front_end) == MFCC:
+        return NUM_FRAMES, NUM_COEFFICIENTS
+    from learning.front_ends import speech_embedding
+
+    return speech_embedding.frames_for(spec.max_samples), speech_embedding.EMBEDDING_DIM
+
+
+def silence(kind: str = "speech", front_end: str = DEFAULT_FRONT_END) -> np.ndarray:
+    """The features of nothing heard: all zeros."""
+    return np.zeros(feature_shape(kind, front_end), dtype=np.float32)
+
+
+def features_from_bytes(data: bytes, kind: str = "speech", front_end: str = DEFAULT_FRONT_END) -> np.ndarray:
+    """Bytes of an audio file → float32 features (`feature_shape`). `kind`: "speech", "phrase" or "sound"."""
+    feature_shape(kind, front_end)  # fail on a bad kind or front end before decoding
+    waveform, _ = decode_audio(data)
+    return features_from_waveform(waveform, kind, front_end)
+
+
+def features_from_waveform(
+    waveform: np.ndarray, kind: str = "speech", front_end: str = DEFAULT_FRONT_END
+) -> np.ndarray:
+    """A decoded 16 kHz mono waveform → float32 features; silence (or nothing) gives all zeros."""
+    spec = feature_kind(kind)
+    shape = feature_shape(kind, front_end)
     sound = trim_silence(np.asarray(waveform, dtype=np.float32))
     peak = float(np.abs(sound).max(initial=0.0))
     if peak < SILENT_PEAK:
-        return SILENCE.copy()
+        return np.zeros(shape, dtype=np.float32)
     sound = sound[: spec.max_samples] * (PEAK_LEVEL / peak)
+    if front_end == MFCC:
+        return _mfcc(sound, kind)
+    from learning.front_ends import speech_embedding
+
+    features = np.zeros(shape, dtype=np.float32)
+    frames = speech_embedding.embed(sound)
+    features[: len(frames)] = frames
+    return features
+
+
+def _mfcc(sound: np.ndarray, kind: str) -> np.ndarray:
+    """A trimmed, cut, peak-normalised sound → (100, 40) MFCC, padded with all-zero frames."""
+    spec = FEATURE_KINDS[kind]
     valid_frames = 1 + len(sound) // spec.hop_samples
     if len(sound) < spec.n_fft:  # the centred STFT reflects n_fft/2 samples at each end
         sound = np.pad(sound, (0, spec.n_fft - len(sound)))

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from learning.front_ends import DEFAULT_FRONT_END
 from learning.sounds.sets import DEFAULT_SETS, SET_NAMES, SOUND_SETS, sound_set
 from learning.sounds.speakers import NOTE_SPLITS, SPEECH_SPLITS
 
@@ -26,13 +27,14 @@ class SoundCorpus:
 
     name: str
     kind: str  # the feature kind its clips were featurised with (learning.audio.FEATURE_KINDS)
-    features: np.ndarray  # (N, 100, 40) float32 MFCC
+    features: np.ndarray  # (N, frames, values) float32 features of the front end, e.g. (N, 100, 40) MFCC
     intent: np.ndarray  # (N,) int64
     speaker: np.ndarray  # (N,) str
     split: np.ndarray  # (N,) str
     clip: np.ndarray  # (N,) str, absolute paths of the 16 kHz WAV clips
     intent_names: list[str]
     manifest_hash: str
+    front_end: str = DEFAULT_FRONT_END  # learning.front_ends: what `features` are
 
     def __len__(self) -> int:
         return len(self.intent)
@@ -67,9 +69,13 @@ class SoundCorpus:
         )
 
 
-def load_corpus(name: str, data_dir: Path | None = None) -> SoundCorpus:
-    """Load a built set from `data_dir/sounds/<name>/` (default: the varbot data dir)."""
-    from learning.sounds.build import BUILD_INFO, FEATURES, MANIFEST, sounds_root
+def load_corpus(
+    name: str, data_dir: Path | None = None, front_end: str = DEFAULT_FRONT_END, progress: bool = False
+) -> SoundCorpus:
+    """Load a built set from `data_dir/sounds/<name>/` (default: the varbot data dir), with the features of
+    `front_end` (computed once from the clips and cached there, for any front end but MFCC)."""
+    from learning.sounds.build import BUILD_INFO, MANIFEST, sounds_root
+    from learning.sounds.features import cached_features
 
     sound_set(name)
     folder = sounds_root(data_dir) / name
@@ -81,7 +87,8 @@ def load_corpus(name: str, data_dir: Path | None = None) -> SoundCorpus:
         )
     info = json.loads((folder / BUILD_INFO).read_text())
     records = [json.loads(line) for line in (folder / MANIFEST).read_text().splitlines()]
-    features = np.load(folder / FEATURES)
+    clips = [str(r["clip"]) for r in records]
+    features = cached_features(folder, clips, info["kind"], front_end, progress)
     if len(features) != len(records):
         raise RuntimeError(
             f"{folder} is inconsistent ({len(features)} features, {len(records)} clips): rebuild it."
@@ -96,4 +103,5 @@ def load_corpus(name: str, data_dir: Path | None = None) -> SoundCorpus:
         clip=np.array([str(folder / r["clip"]) for r in records], dtype=str),
         intent_names=list(info["intent_names"]),
         manifest_hash=info["manifest_hash"],
+        front_end=front_end,
     )

@@ -1,4 +1,5 @@
-"""VAR checkpoints: weights + the config that fixes their shape + whatever the trainer needs to resume.
+"""VAR checkpoints: weights + the config that fixes their shape (the sound front end included) + whatever the
+trainer needs to resume.
 
 One file serves both uses: `load_var` reads the model for inference, `read_checkpoint` the training state.
 """
@@ -56,10 +57,26 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
 def _config_differences(expected: VARConfig, found: VARConfig) -> list[str]:
     mine, theirs = expected.to_dict(), found.to_dict()
     return [
-        f"{key}: model has {mine[key]}, checkpoint has {theirs[key]}"
+        _front_end_difference(expected.front_end, found.front_end)
+        if key == "front_end"
+        else f"{key}: model has {mine[key]}, checkpoint has {theirs[key]}"
         for key in mine
         if mine[key] != theirs[key]
     ]
+
+
+def _front_end_difference(wanted: str, saved: str) -> str:
+    return (
+        f"sound front end: the checkpoint's f_S reads '{saved}' features, but '{wanted}' features are used "
+        f"here (compute the clips' features with front_end='{saved}', or train a VAR on '{wanted}')"
+    )
+
+
+def check_front_end(payload: dict[str, Any], front_end: str | None, path: str | Path) -> None:
+    """Refuse a checkpoint whose sound front end is not the one the caller's features come from."""
+    saved = VARConfig.from_dict(payload["config"]).front_end
+    if front_end is not None and saved != front_end:
+        raise CheckpointMismatchError(f"{path} does not fit: {_front_end_difference(front_end, saved)}.")
 
 
 def check_manifest(payload: dict[str, Any], manifest_hash: str | None, path: str | Path) -> None:
@@ -84,10 +101,17 @@ def load_state_into(model: VAR, payload: dict[str, Any], path: str | Path) -> No
     model.load_state_dict(payload["state_dict"])
 
 
-def load_var(path: str | Path, config: VARConfig | None = None, manifest_hash: str | None = None) -> VAR:
-    """The VAR stored at `path`, in eval mode; with `config`/`manifest_hash`, refuse one that differs."""
+def load_var(
+    path: str | Path,
+    config: VARConfig | None = None,
+    manifest_hash: str | None = None,
+    front_end: str | None = None,
+) -> VAR:
+    """The VAR stored at `path`, in eval mode; with `config`/`manifest_hash`/`front_end`, refuse one that
+    differs. A checkpoint written before front ends existed is an MFCC one."""
     payload = read_checkpoint(path)
     check_manifest(payload, manifest_hash, path)
+    check_front_end(payload, front_end, path)
     model = VAR(config or VARConfig.from_dict(payload["config"]))
     load_state_into(model, payload, path)
     return model.eval()

@@ -28,10 +28,10 @@ def _default_run_dir(dataset: str, sounds: str, kind: str) -> str:
     return str(data_subdir("var", "runs", f"{Path(dataset).name}-{sounds}-{kind}"))
 
 
-def _corpus(name: str):
+def _corpus(name: str, front_end: str = "mfcc"):
     from learning.sounds import load_corpus
 
-    return load_corpus(name)
+    return load_corpus(name, front_end=front_end)
 
 
 def _sounds_for(dataset: str, sounds: str | None) -> str:
@@ -107,6 +107,9 @@ def train(
     lr: float = 2e-3,
     margin: float = 1.0,
     embedding_dim: int = 3,
+    front_end: Annotated[
+        str, typer.Option(help="Sound front end of f_S: mfcc (the paper's) or speech-embedding.")
+    ] = "mfcc",
     augment: bool = True,
     speed_copies: Annotated[
         int, typer.Option(help="Add this many faster/slower renderings of every training clip.")
@@ -137,7 +140,7 @@ def train(
             batch_size=batch_size,
             lr=lr,
             margin=margin,
-            model=VARConfig(embedding_dim=embedding_dim),
+            model=VARConfig(embedding_dim=embedding_dim, front_end=front_end),
             augment=augment,
             sound_speakers=tuple(speakers.split(",")) if speakers else None,
             sound_speed_copies=speed_copies,
@@ -238,8 +241,10 @@ def evaluate(
     torch.set_num_threads(threads)
     try:
         sounds = _sounds_for(dataset, sounds)
-        corpus = _corpus(sounds)
-        var = load_var(checkpoint, manifest_hash=None if allow_other_corpus else corpus.manifest_hash)
+        var = load_var(checkpoint)
+        corpus = _corpus(sounds, var.front_end)  # the clips' features as the VAR's f_S reads them
+        if not allow_other_corpus:
+            var = load_var(checkpoint, manifest_hash=corpus.manifest_hash)
         result = evaluate_var(var, open_dataset(dataset), corpus)
     except (ValueError, FileNotFoundError) as error:
         _fail(error)
@@ -294,7 +299,7 @@ def plot(
         path = plot_sphere(
             var,
             open_dataset(dataset),
-            _corpus(sounds),
+            _corpus(sounds, var.front_end),
             output or checkpoint.with_suffix(".sphere.png"),
             splits=splits.split(",") if splits else None,
         )

@@ -22,7 +22,7 @@ from tqdm import tqdm
 from core.paths import data_subdir
 
 NOTHING_HEARD = -1
-SILENCE_ID = -1  # in drawn sound ids: the all-zero MFCC
+SILENCE_ID = -1  # in drawn sound ids: the all-zero features
 CHUNK = 256  # images a worker renders before writing them out and reporting progress
 
 
@@ -255,7 +255,7 @@ def _drain(report: Any, processes: list[Any], total: int, progress: bool, world:
 class SoundBank:
     """Clips grouped by intent so that a clip of intent k can be drawn for a whole batch at once."""
 
-    features: np.ndarray  # (M, 100, 40) float32, sorted by intent
+    features: np.ndarray  # (M, frames, values) float32 features of the corpus's front end, sorted by intent
     intent: np.ndarray  # (M,)
     starts: np.ndarray  # (K,) first row of each intent
     counts: np.ndarray  # (K,)
@@ -298,7 +298,9 @@ class SoundBank:
                     f"Speed copies change pitch, and {corpus.name} is a '{corpus.kind}' set whose commands "
                     "may be pitches: train it without --speed-copies."
                 )
-            copies = speed_perturbed_features(chosen.clip, corpus.kind, speed_copies, speed_range, seed)
+            copies = speed_perturbed_features(
+                chosen.clip, corpus.kind, speed_copies, speed_range, seed, corpus.front_end
+            )
             features = np.concatenate([features, copies])
             intent = np.concatenate([intent, np.repeat(chosen.intent, speed_copies)])
         return cls.build(features, intent, len(corpus.intent_names))
@@ -308,7 +310,7 @@ class SoundBank:
         return len(self.counts)
 
     def draw(self, sound_ids: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """One clip per id (intent k, or SILENCE_ID for the all-zero MFCC)."""
+        """One clip per id (intent k, or SILENCE_ID for the all-zero features)."""
         out = np.zeros((len(sound_ids), *self.features.shape[1:]), dtype=np.float32)
         spoken = sound_ids >= 0
         ids = sound_ids[spoken]
@@ -318,12 +320,17 @@ class SoundBank:
 
 
 def speed_perturbed_features(
-    paths: np.ndarray, kind: str, copies: int, speed: tuple[float, float], seed: int
+    paths: np.ndarray,
+    kind: str,
+    copies: int,
+    speed: tuple[float, float],
+    seed: int,
+    front_end: str = "mfcc",
 ) -> np.ndarray:
-    """MFCC features of `copies` speed-perturbed renderings of every clip, clip by clip (rows c·copies..)."""
+    """Features of `copies` speed-perturbed renderings of every clip, clip by clip (rows c·copies..)."""
     import torch
 
-    from learning.audio import SILENCE, decode_audio, features_from_waveform
+    from learning.audio import decode_audio, feature_shape, features_from_waveform
     from learning.augment import perturb_speed
 
     generator = torch.Generator().manual_seed(seed)
@@ -334,8 +341,8 @@ def speed_perturbed_features(
         padded = np.pad(waveform, (0, slowed_length - len(waveform)))
         batch = torch.from_numpy(padded).repeat(copies, 1)
         for wave in perturb_speed(batch, generator, speed).numpy():
-            rows.append(features_from_waveform(wave, kind))
-    return np.stack(rows) if rows else np.zeros((0, *SILENCE.shape), np.float32)
+            rows.append(features_from_waveform(wave, kind, front_end))
+    return np.stack(rows) if rows else np.zeros((0, *feature_shape(kind, front_end)), np.float32)
 
 
 def triplet_sound_ids(heard: np.ndarray, num_intents: int, rng: np.random.Generator):

@@ -1,4 +1,8 @@
-"""The two encoders of the VAR: f_I over camera images and f_S over MFCC features, onto the unit sphere."""
+"""The two encoders of the VAR: f_I over camera images and f_S over a clip's features, onto the unit sphere.
+
+f_S is chosen by the sound front end (`VARConfig.front_end`, learning.front_ends): 1-D convolutions over MFCC
+(the paper's), or a small trainable head over frozen speech-embedding frames.
+"""
 
 from dataclasses import asdict, dataclass
 
@@ -6,8 +10,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from learning.front_ends import DEFAULT_FRONT_END, MFCC, VALUES_PER_FRAME, check_front_end
+
 MFCC_FRAMES = 100
-MFCC_COEFFICIENTS = 40
+MFCC_COEFFICIENTS = VALUES_PER_FRAME[MFCC]
 
 
 @dataclass(frozen=True)
@@ -19,6 +25,10 @@ class VARConfig:
     image_channels: tuple[int, ...] = (8, 16, 32, 64, 128)
     sound_channels: tuple[int, ...] = (32, 64, 96)
     hidden: int = 128
+    front_end: str = DEFAULT_FRONT_END  # a checkpoint written before front ends existed is MFCC
+
+    def __post_init__(self) -> None:
+        check_front_end(self.front_end)
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -94,6 +104,36 @@ class SoundEncoder(nn.Module):
         return self.head(pooled)
 
 
+class EmbeddingSoundEncoder(nn.Module):
+    """A small trainable head over frozen embedding frames (B, frames, values): one layer per frame, the mean
+    and the max over the clip's frames (all-zero padding frames left out), then two layers."""
+
+    def __init__(self, config: VARConfig) -> None:
+        super().__init__()
+        values = VALUES_PER_FRAME[config.front_end]
+        self.frame = nn.Sequential(nn.Linear(values, config.hidden), nn.ReLU(inplace=True))
+        self.head = nn.Sequential(
+            nn.Linear(2 * config.hidden, config.hidden),
+            nn.ReLU(inplace=True),
+            nn.Linear(config.hidden, config.embedding_dim),
+        )
+        self.register_buffer("feature_mean", torch.zeros(values))
+        self.register_buffer("feature_std", torch.ones(values))
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        heard = (features != 0).any(dim=2, keepdim=True)  # silence is all frames zero: one fixed output
+        x = self.frame((features.float() - self.feature_mean) / self.feature_std) * heard
+        mean = x.sum(dim=1) / heard.sum(dim=1).clamp_min(1)
+        return self.head(torch.cat([x.amax(dim=1), mean], dim=1))  # after ReLU, masked frames (0) never win
+
+    def set_statistics(self, features: torch.Tensor) -> None:
+        flat = features.float().reshape(-1, features.shape[-1])
+        heard = flat[(flat != 0).any(dim=1)]
+        if len(heard) > 1:
+            self.feature_mean.copy_(heard.mean(dim=0))
+            self.feature_std.copy_(heard.std(dim=0).clamp_min(1e-3))
+
+
 class VAR(nn.Module):
     """f_I and f_S; both return L2-normalised embeddings in R^d."""
 
@@ -101,7 +141,13 @@ class VAR(nn.Module):
         super().__init__()
         self.config = config or VARConfig()
         self.image_encoder = ImageEncoder(self.config)
-        self.sound_encoder = SoundEncoder(self.config)
+        self.sound_encoder = (
+            SoundEncoder(self.config) if self.config.front_end == MFCC else EmbeddingSoundEncoder(self.config)
+        )
+
+    @property
+    def front_end(self) -> str:
+        return self.config.front_end
 
     def encode_image(self, images: torch.Tensor) -> torch.Tensor:
         """uint8 (B, H, W, 3) camera images, channels last, as rendered → (B, d) unit vectors."""
@@ -115,17 +161,34 @@ class VAR(nn.Module):
             raise ValueError(f"encode_image expects uint8 pixels (0..255), got {images.dtype}.")
         return F.normalize(self.image_encoder(images), dim=1)
 
-    def encode_sound(self, mfcc: torch.Tensor) -> torch.Tensor:
-        """MFCC features (B, 100, 40) → (B, d) unit vectors. Silence is an all-zero MFCC."""
-        if mfcc.ndim != 3 or tuple(mfcc.shape[1:]) != (MFCC_FRAMES, MFCC_COEFFICIENTS):
-            raise ValueError(
-                f"encode_sound expects MFCC features shaped (B, {MFCC_FRAMES}, {MFCC_COEFFICIENTS}), "
-                f"got {tuple(mfcc.shape)}; compute them with learning.audio.features_from_bytes."
-            )
-        return F.normalize(self.sound_encoder(mfcc), dim=1)
+    def encode_sound(self, features: torch.Tensor) -> torch.Tensor:
+        """The front end's features (B, frames, values), e.g. MFCC (B, 100, 40) → (B, d) unit vectors.
+        Silence is all zeros."""
+        self._check_sound_shape(features)
+        return F.normalize(self.sound_encoder(features), dim=1)
+
+    def encode_silence(self) -> torch.Tensor:
+        """f_S of nothing heard, (1, d)."""
+        frames = MFCC_FRAMES if self.front_end == MFCC else 1  # the head pools over frames: any count will do
+        return self.encode_sound(torch.zeros(1, frames, VALUES_PER_FRAME[self.front_end]))
 
     def set_sound_statistics(self, features: torch.Tensor) -> None:
-        """Standardise MFCC coefficients with the mean/std of these (N, 100, 40) training features."""
+        """Standardise each feature value with the mean/std of these (N, frames, values) training features."""
+        self._check_sound_shape(features)
+        if self.front_end != MFCC:
+            self.sound_encoder.set_statistics(features)
+            return
         flat = features.float().reshape(-1, MFCC_COEFFICIENTS)
         self.sound_encoder.mfcc_mean.copy_(flat.mean(dim=0))
         self.sound_encoder.mfcc_std.copy_(flat.std(dim=0).clamp_min(1e-3))
+
+    def _check_sound_shape(self, features: torch.Tensor) -> None:
+        values = VALUES_PER_FRAME[self.front_end]
+        frames_fit = features.ndim == 3 and (self.front_end != MFCC or features.shape[1] == MFCC_FRAMES)
+        if not frames_fit or features.shape[2] != values:
+            expected = f"(B, {MFCC_FRAMES}, {values})" if self.front_end == MFCC else f"(B, frames, {values})"
+            raise ValueError(
+                f"encode_sound expects {self.front_end} features shaped {expected}, got "
+                f"{tuple(features.shape)}: this VAR's sound front end is '{self.front_end}'; compute them "
+                f"with learning.audio.features_from_bytes(..., front_end='{self.front_end}')."
+            )

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from learning.front_ends import MFCC
 from learning.var.checkpoint import (
     CheckpointMismatchError,
     check_manifest,
@@ -57,7 +58,7 @@ class TrainConfig:
     val_fraction: float = 0.05
     eval_every_steps: int | None = None  # None: once per epoch
     patience: int | None = None  # stop after this many evaluations without a better held-out accuracy
-    augment: bool = True  # sounds: learning.augment.augment_features; images: shift + brightness/contrast
+    augment: bool = True  # MFCC: learning.augment.augment_features; images: shift + brightness/contrast
     image_shift_fraction: float = 0.04
     image_jitter: float = 0.1
     in_view_share: float | None = 0.5  # share of each batch with a target in view; None: sample uniformly
@@ -120,14 +121,17 @@ def _split_rows(count: int, val_fraction: float, seed: int) -> tuple[np.ndarray,
     return np.sort(rows[held_out:]), np.sort(rows[:held_out])
 
 
-def _load_corpus(name: str):
+def _load_corpus(name: str, front_end: str, progress: bool):
+    """The corpus with the features the model's sound front end reads (computed once, then cached)."""
     from learning.sounds import load_corpus
 
-    return load_corpus(name)
+    return load_corpus(name, front_end=front_end, progress=progress)
 
 
-def _sound_augmenter(enabled: bool) -> Callable[[torch.Tensor, torch.Generator], torch.Tensor] | None:
-    if not enabled:
+def _sound_augmenter(
+    enabled: bool, front_end: str
+) -> Callable[[torch.Tensor, torch.Generator], torch.Tensor] | None:
+    if not enabled or front_end != MFCC:  # gain, frame shift and SpecAugment are MFCC augmentations
         return None
     from learning.augment import augment_features
 
@@ -155,7 +159,7 @@ class _Trainer:
         torch.manual_seed(config.seed)  # before the model is built: its initial weights come from here
 
         images = open_dataset(config.dataset)
-        corpus = _load_corpus(config.sounds)
+        corpus = _load_corpus(config.sounds, config.model.front_end, config.progress)
         self.corpus_hash = corpus.manifest_hash
         train_rows, val_rows = _split_rows(len(images), config.val_fraction, config.seed)
         bank = SoundBank.from_corpus(
@@ -179,7 +183,7 @@ class _Trainer:
         self.scheduler = torch.optim.lr_scheduler.LambdaLR(
             self.optimizer, _schedule(config, self.total_steps)
         )
-        self.augment = _sound_augmenter(config.augment)
+        self.augment = _sound_augmenter(config.augment, config.model.front_end)
         self.rng = np.random.default_rng([config.seed, 1])
         self.torch_rng = torch.Generator().manual_seed(config.seed)
         self.step, self.best_val, self.last_val, self.evals_since_best = 0, None, None, 0
@@ -198,7 +202,7 @@ class _Trainer:
         if not config.replay_dataset or config.replay_fraction <= 0:
             return None
         images = open_dataset(config.replay_dataset)
-        corpus = _load_corpus(config.replay_sounds or config.sounds)
+        corpus = _load_corpus(config.replay_sounds or config.sounds, config.model.front_end, config.progress)
         if config.init_checkpoint:  # replayed sounds must be the ones the checkpoint learnt from
             payload = read_checkpoint(config.init_checkpoint)
             if payload.get("sound_set") == (config.replay_sounds or config.sounds):
