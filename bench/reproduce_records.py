@@ -21,6 +21,7 @@ OUTPUT = RESULTS / "reproduce.json"
 KEYED_SECTIONS = ("rows", "experiments", "diagnostics")
 LISTED_SECTIONS = ("earlier_runs", "interrupted_runs")
 SECTIONS = KEYED_SECTIONS + LISTED_SECTIONS
+LONG_TEXT = 120  # characters of a changed field's old and new value together, above which the log says less
 
 
 class RecordError(ValueError):
@@ -127,6 +128,13 @@ def parse_assignments(texts: list[str]) -> dict[str, str]:
     return pairs
 
 
+def change_of(name: str, old: object, new: str) -> str:
+    """A changed field as the log shows it; a long text is not repeated (git keeps the earlier one)."""
+    if len(json.dumps(old)) + len(new) > LONG_TEXT:
+        return f"{name} rewritten (the earlier text stays in the file's git history)"
+    return f"{name}: {json.dumps(old)} -> {json.dumps(new)}"
+
+
 def relabel(results: dict, record_id: str, values: dict[str, str], renames: dict[str, str]) -> str:
     """Sets text fields (tag, status, note, row, method …) and renames fields; a keyed record whose key
     depends on a changed field is stored under its new key."""
@@ -140,7 +148,7 @@ def relabel(results: dict, record_id: str, values: dict[str, str], renames: dict
         record[new] = record.pop(old)
         changes.append(f"field {old} renamed {new}")
     for name, value in values.items():
-        changes.append(f"{name}: {json.dumps(record.get(name))} -> {json.dumps(value)}")
+        changes.append(change_of(name, record.get(name), value))
         record[name] = value
     new_id = record_id
     if section in KEYED_SECTIONS and slot_key(section, record) != key:
