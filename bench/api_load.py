@@ -11,7 +11,6 @@ import argparse
 import asyncio
 import contextlib
 import io
-import json
 import os
 import random
 import shutil
@@ -25,7 +24,9 @@ from pathlib import Path
 import httpx
 import numpy as np
 import soundfile
+from conditions import Conditions, describe
 from PIL import Image
+from result_files import write_result
 from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
@@ -293,8 +294,9 @@ def main() -> None:
     parser.add_argument("--upload-clients", type=int, default=10)
     parser.add_argument("--upload-seconds", type=float, default=10.0)
     args = parser.parse_args()
-    load_at_start = os.getloadavg()
+    conditions = Conditions()
     results = {db: measure(db, args) for db in args.databases}
+    measured = conditions.finish()
     table = Table(title=f"API under load ({args.clients} clients, 127.0.0.1, one uvicorn process)")
     for column in (
         "database",
@@ -324,17 +326,15 @@ def main() -> None:
             str(r["server_peak_rss_mb"]),
         )
     console.print(table)
+    console.print(describe(measured))
     payload = {
         "command": f"nice -n {os.nice(0)} .venv/bin/python bench/api_load.py " + " ".join(sys.argv[1:]),
-        "machine": f"{os.cpu_count()} CPU cores, shared with other agents' jobs while measured",
-        "load_average_at_start": load_at_start,
-        "load_average_at_end": os.getloadavg(),
+        **measured,
         "goals": {"label_round_trips_per_s": 300, "label_p99_ms": 100, "uploads_per_s": 30, "rss_mb": 300},
         "settings": vars(args),
         "results": results,
     }
-    RESULT.parent.mkdir(parents=True, exist_ok=True)
-    RESULT.write_text(json.dumps(payload, indent=2) + "\n")
+    write_result(RESULT, payload)
     console.print(f"wrote {RESULT.relative_to(ROOT)}")
 
 
