@@ -134,8 +134,22 @@ class AuthSession(Base):
     kind: Mapped[str] = mapped_column(String(8))
     created_at: Mapped[datetime] = mapped_column(UTCDateTime, default=utcnow)
     expires_at: Mapped[datetime] = mapped_column(UTCDateTime)
+    # Shown in the member's list of sessions, so that they can tell which one to end.
+    user_agent: Mapped[str | None] = mapped_column(String(200))
+    client_address: Mapped[str | None] = mapped_column(String(64))
 
     user: Mapped[User] = relationship(lazy="joined", innerjoin=True)
+
+
+class LoginFailure(Base):
+    """A wrong password, kept by the sign-in throttle while Redis cannot be reached (backend/throttle.py)."""
+
+    __tablename__ = "login_failures"
+    __table_args__ = (Index("ix_login_failures_key_at", "key", "at"),)
+
+    id: Mapped[int] = mapped_column(primary_key=True)
+    key: Mapped[str] = mapped_column(String(80))  # "account:<name>" or "address:<ip>"
+    at: Mapped[float] = mapped_column(Float)  # Unix time, like the Redis store's scores
 
 
 class Robot(Base):

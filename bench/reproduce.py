@@ -194,11 +194,10 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     from core.paths import data_subdir
     from learning.rl.baselines import method_config, needs_var
     from learning.rl.evaluate import evaluate, save_eval
-    from learning.rl.frozen_var import load_frozen_var
     from learning.rl.plots import plot_run, read_metrics
     from learning.rl.ppo import load_policy
     from learning.rl.rewards import corpus_bank
-    from learning.rl.run import train_run
+    from learning.rl.run import load_frozen_var, train_run
     from learning.sounds import load_corpus
 
     row, method = key.split(":")
@@ -206,9 +205,8 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     ensure_corpus(sounds)
     var_path = ensure_var(world, sounds, args) if needs_var(method) else None
     image_size = args.image_size
-    loaded_var = load_frozen_var(var_path)  # read once, for the run and its evaluation
-    if image_size is None and loaded_var is not None:
-        image_size = loaded_var.image_size
+    if image_size is None and var_path is not None:
+        image_size = int(load_frozen_var(var_path).config.image_size)
     config = method_config(
         method,
         world=world,
@@ -237,12 +235,12 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
             save_results(results)
         return args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
 
-    summary = train_run(config, run_dir, loaded_var, resume=args.resume, on_update=on_update)
+    summary = train_run(config, run_dir, var_path, resume=args.resume, on_update=on_update)
     records = read_metrics(run_dir)
     wall = sum(config.batch_size / r["sps"] for r in records)
     complete = summary["env_steps"] >= config.num_updates * config.batch_size
     policy, payload = load_policy(run_dir / "checkpoint.pt")
-    var = loaded_var.model if loaded_var is not None else None
+    var = load_frozen_var(var_path)
     corpus = load_corpus(sounds)
     understood = goal_clips_understood(var, corpus) if var is not None else None
     evaluations = {}
