@@ -3,6 +3,7 @@
 
 class ApiError(Exception):
     status_code = 400
+    headers: dict[str, str] | None = None  # e.g. Retry-After
 
     def __init__(self, detail: str) -> None:
         super().__init__(detail)

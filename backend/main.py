@@ -27,7 +27,7 @@ def create_app() -> FastAPI:
 
     @app.exception_handler(ApiError)
     async def api_error(_request: Request, exc: ApiError) -> JSONResponse:
-        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code)
+        return JSONResponse({"detail": exc.detail}, status_code=exc.status_code, headers=exc.headers)
 
     @app.exception_handler(BlobNotFound)
     async def blob_missing(_request: Request, exc: BlobNotFound) -> JSONResponse:

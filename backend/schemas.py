@@ -91,6 +91,18 @@ class TokenResult(BaseModel):
     expires_at: datetime
 
 
+class SessionPublic(Public):
+    """One of the caller's sessions: a signed-in browser (cookie) or script (bearer token)."""
+
+    id: int
+    kind: Literal["cookie", "bearer"]
+    created_at: datetime
+    expires_at: datetime
+    user_agent: str | None
+    client_address: str | None
+    current: bool = Field(default=False, description="The session this request came with.")
+
+
 # --- robots -------------------------------------------------------------------------------------------------
 
 

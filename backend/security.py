@@ -1,17 +1,27 @@
 """Passwords (Argon2), session tokens (random, stored only as an HMAC), CSRF tokens, and the short-lived
-cache of sign-in lookups."""
+cache of sign-in lookups.
 
+Each Argon2 hash takes `password_hash_memory_kib` (64 MiB by default) while it runs, so a process hashes at
+most `password_hash_concurrency` passwords at once, whatever the sign-in rate: memory stays flat. Sign-ins
+wait for a slot on the event loop (not on one of the request threads, which other members' requests need),
+and are turned away (`HashingBusy`) when more than `password_hash_queue` are already waiting."""
+
+import asyncio
 import hashlib
 import hmac
 import secrets
 import threading
 import time
+import weakref
 from functools import lru_cache
 from typing import Any
 
+import anyio
+import anyio.to_thread
 from argon2 import PasswordHasher
 from argon2.exceptions import InvalidHashError, VerificationError
 
+from backend.errors import ApiError
 from backend.settings import get_settings
 
 SESSION_COOKIE = "varbot_session"
@@ -31,14 +41,26 @@ def _current_hasher() -> tuple[PasswordHasher, str]:
     return _hasher(settings.password_hash_time_cost, settings.password_hash_memory_kib)
 
 
+@lru_cache
+def _hash_slots(concurrency: int) -> threading.BoundedSemaphore:
+    return threading.BoundedSemaphore(concurrency)
+
+
+def _slot() -> threading.BoundedSemaphore:
+    """Held while one password is hashed: every caller in this process (sign-in, password change, CLI)."""
+    return _hash_slots(get_settings().password_hash_concurrency)
+
+
 def hash_password(password: str) -> str:
-    return _current_hasher()[0].hash(password)
+    with _slot():
+        return _current_hasher()[0].hash(password)
 
 
 def verify_password(password: str, password_hash: str | None) -> bool:
     hasher, dummy = _current_hasher()
     try:
-        return hasher.verify(password_hash or dummy, password) and password_hash is not None
+        with _slot():
+            return hasher.verify(password_hash or dummy, password) and password_hash is not None
     except (VerificationError, InvalidHashError):
         return False
 
@@ -103,3 +125,44 @@ class SignedInCache:
 
 
 signed_in_cache = SignedInCache()
+
+
+class HashingBusy(ApiError):
+    status_code = 503
+
+    def __init__(self) -> None:
+        super().__init__("too many sign-ins are waiting for their password to be checked; try again soon")
+        self.headers = {"Retry-After": "1"}
+
+
+class _WaitingRoom:
+    """The sign-ins of one event loop that are having, or waiting for, a hashing slot."""
+
+    def __init__(self, slots: int) -> None:
+        self.limiter = anyio.CapacityLimiter(slots)  # belongs to the loop it was made on
+        self.inside = 0
+
+
+_waiting_rooms: "weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, _WaitingRoom]" = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def _waiting_room(slots: int) -> _WaitingRoom:
+    loop = asyncio.get_running_loop()
+    if (room := _waiting_rooms.get(loop)) is None:
+        room = _waiting_rooms[loop] = _WaitingRoom(slots)
+    return room
+
+
+async def verify_password_waiting(password: str, password_hash: str | None) -> bool:
+    """`verify_password` for sign-ins: waits for a hashing slot without holding a request thread."""
+    settings = get_settings()
+    room = _waiting_room(settings.password_hash_concurrency)
+    if room.inside >= settings.password_hash_concurrency + settings.password_hash_queue:
+        raise HashingBusy()
+    room.inside += 1
+    try:
+        return await anyio.to_thread.run_sync(verify_password, password, password_hash, limiter=room.limiter)
+    finally:
+        room.inside -= 1

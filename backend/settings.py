@@ -26,8 +26,17 @@ class Settings(BaseSettings):
     # Argon2id cost (RFC 9106 "low memory" profile by default); tests lower it to stay fast.
     password_hash_time_cost: int = Field(default=3, ge=1)
     password_hash_memory_kib: int = Field(default=65536, ge=8)
+    # At most this many hashes at once per process (each holds password_hash_memory_kib while it runs)...
+    password_hash_concurrency: int = Field(default=1, ge=1)
+    # ...and sign-ins waiting for one beyond this many are answered 503 at once.
+    password_hash_queue: int = Field(default=16, ge=0)
+    # Wrong passwords allowed within the sliding window, per account and per client address; more get 429.
+    login_window_seconds: float = Field(default=900, gt=0)
+    login_failures_per_account: int = Field(default=10, ge=1)
+    login_failures_per_address: int = Field(default=20, ge=1)
     session_ttl_hours: int = Field(default=24 * 14, ge=1)
-    cookie_secure: bool = False
+    # None: Secure cookies in production (behind HTTPS), not on the plain-HTTP development and test servers.
+    cookie_secure: bool | None = None
     max_clip_bytes: int = 5 * 1024 * 1024
     min_clip_seconds: float = 0.3
     max_clip_seconds: float = 10.0
@@ -50,6 +59,10 @@ class Settings(BaseSettings):
         if urlsplit(self.database_url).password == DEFAULT_SECRET:
             raise ValueError(f"the database password in VARBOT_DATABASE_URL is still {DEFAULT_SECRET!r}")
         return self
+
+    @property
+    def secure_cookies(self) -> bool:
+        return self.cookie_secure if self.cookie_secure is not None else self.environment == "production"
 
     @property
     def sqlalchemy_url(self) -> str:

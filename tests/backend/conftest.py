@@ -245,20 +245,6 @@ def fresh_login_throttle(redis_socket: Path) -> None:
     client.close()
 
 
-@pytest.fixture(autouse=True)
-def fresh_login_throttle(redis_socket: Path) -> None:
-    """Every test client signs in from the same address ("testclient"): start each test with no wrong
-    passwords counted (the database's fallback counts roll back with the test's transaction)."""
-    import redis
-
-    from backend.throttle import REDIS_PREFIX
-
-    client = redis.Redis(unix_socket_path=str(redis_socket))
-    for key in client.scan_iter(f"{REDIS_PREFIX}*"):
-        client.delete(key)
-    client.close()
-
-
 @pytest.fixture
 def redis_client(redis_socket: Path):  # type: ignore[no-untyped-def]
     import redis

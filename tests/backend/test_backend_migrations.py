@@ -8,6 +8,7 @@ TABLES = {
     "households",
     "users",
     "auth_sessions",
+    "login_failures",
     "robots",
     "clips",
     "snapshots",

@@ -36,4 +36,4 @@ def add_member(body: schemas.MemberCreate, caller: AdminDep, session: SessionDep
 @router.patch("/members/{member_id}", response_model=schemas.UserPublic)
 def update_member(member_id: PathId, body: schemas.MemberUpdate, caller: AdminDep, session: SessionDep):  # type: ignore[no-untyped-def]
     member = accounts.get_member(session, caller.household_id, member_id)
-    return accounts.update_member(session, member, body)
+    return accounts.update_member(session, member, body, caller.signed_in.auth_session_id)
