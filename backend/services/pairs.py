@@ -103,17 +103,15 @@ def _pair(session: Session, snapshot_id: int, clip_id: int) -> tuple[dict[str, A
 
 
 def next_pair(session: Session, user_id: int, household_id: int, robot_id: int | None) -> PairChoice | None:
-    """The pair to ask this member next. A pair just handed to another member of the household is passed
-    over while that member answers it (`pair_leases`); if every candidate is taken, one is asked anyway."""
+    """The pair to ask this member next, claimed for them (`pair_leases`): a pair another member of the
+    household holds is passed over while that member answers it; if every candidate is taken, one is asked
+    anyway."""
     clips = _clips_in_asking_order(session, household_id)
     if not clips:
         return None
-    choice = _informative_pair(session, user_id, household_id, robot_id, clips) or _balanced_pair(
+    return _informative_pair(session, user_id, household_id, robot_id, clips) or _balanced_pair(
         session, user_id, household_id, robot_id, clips
     )
-    if choice is not None:
-        pair_leases.grant((household_id, choice.snapshot["id"], choice.clip["id"]), user_id)
-    return choice
 
 
 def _balanced_pair(
@@ -137,7 +135,7 @@ def _balanced_pair(
             most_answered = [row[1] for row in rows if row[0] == best]
             random.shuffle(most_answered)  # the most-answered images first, in random order, then the rest
             for snapshot_id in [*most_answered, *(row[1] for row in rows if row[0] != best)]:
-                if not pair_leases.held_by_another((household_id, snapshot_id, clip.clip_id), user_id):
+                if pair_leases.claim((household_id, snapshot_id, clip.clip_id), user_id):
                     return PairChoice(*_pair(session, snapshot_id, clip.clip_id), "balanced")
             fallback = fallback or (most_answered[0], clip.clip_id)
     return None if fallback is None else PairChoice(*_pair(session, *fallback), "balanced")
@@ -216,7 +214,8 @@ def _informative_pair(
                     if best is None or score[index] > best[0]:
                         best = (float(score[index]), snapshot_id, clip.clip_id)
                     break
-        if best is not None:
+        # Claimed only now (one pair, not every candidate looked at); lost to a faster member: ask another.
+        if best is not None and pair_leases.claim((household_id, best[1], best[2]), user_id):
             score, snapshot_id, clip_id = best
             return PairChoice(*_pair(session, snapshot_id, clip_id), "informative", score)
     return None
