@@ -1,7 +1,6 @@
 """Sound corpora: a small build in seconds, honest splits by speaker, determinism for a seed, caching."""
 
 import json
-import shutil
 from collections import defaultdict
 from pathlib import Path
 
@@ -30,10 +29,17 @@ MISSING = sound_engines.missing_packages(
     {"kal_diphone", "ked_diphone"},
     {"FluidR3_GM", "TimGM6mb"},
 )
-needs_synthesizers = pytest.mark.skipif(
-    bool(MISSING),
-    reason=f"Debian packages missing: {', '.join(MISSING)} (scripts/install-system-packages.sh)",
-)
+
+
+@pytest.fixture(scope="module")
+def synthesizers() -> None:
+    """A missing synthesizer fails the tests that need it, with what to install (never a silent skip)."""
+    assert not MISSING, (
+        f"Debian packages missing: {', '.join(MISSING)} (sudo bash scripts/install-system-packages.sh)"
+    )
+
+
+needs_synthesizers = pytest.mark.usefixtures("synthesizers")
 
 
 def manifest(root: Path, name: str) -> list[dict]:
@@ -41,9 +47,7 @@ def manifest(root: Path, name: str) -> list[dict]:
 
 
 @pytest.fixture(scope="module")
-def small_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    if MISSING:
-        pytest.skip(f"Debian packages missing: {', '.join(MISSING)}")
+def small_root(tmp_path_factory: pytest.TempPathFactory, synthesizers: None) -> Path:
     root = tmp_path_factory.mktemp("sounds-small")
     build_corpora(SET_NAMES, profile="small", seed=0, root=root, progress=False, log=lambda _: None)
     return root
@@ -218,7 +222,7 @@ def test_missing_soundfont_names_the_debian_package(monkeypatch: pytest.MonkeyPa
         build_corpora(["notes"], profile="small", root=tmp_path, progress=False)
 
 
-@pytest.mark.skipif(shutil.which("festival") is None, reason="Debian package festival missing")
+@needs_synthesizers
 def test_festival_renders_a_batch_in_one_process() -> None:
     clips = sound_engines.festival_batch([("kal_diphone", "zero.", 1.0), ("kal_diphone", "three?", 1.2)])
     assert len(clips) == 2 and all(c[:4] == b"RIFF" for c in clips)
