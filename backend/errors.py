@@ -31,3 +31,11 @@ class Invalid(ApiError):
 
 class Unavailable(ApiError):
     status_code = 503
+
+
+class QuotaExceeded(ApiError):
+    status_code = 429
+
+    def __init__(self, detail: str, retry_after_s: int) -> None:
+        super().__init__(detail)
+        self.headers = {"Retry-After": str(retry_after_s)}

@@ -42,6 +42,7 @@ class Settings(BaseSettings):
     max_clip_seconds: float = 10.0
     max_image_bytes: int = 10 * 1024 * 1024
     max_capture_count: int = 500
+    capture_views_per_hour: int = Field(default=2000, ge=1)  # per household: renders cost the robot worker
     min_triplets_for_training: int = Field(default=20, ge=0)
     orphan_grace_seconds: int = 3600
     sse_poll_seconds: float = 1.0

@@ -11,7 +11,7 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from backend import models
-from backend.errors import Conflict, NotFound
+from backend.errors import Conflict, Forbidden, NotFound
 from backend.schemas import LabelCreate
 from backend.services.pair_leases import pair_leases
 
@@ -101,7 +101,8 @@ def create_label(session: Session, user_id: int, household_id: int, body: LabelC
         raise NotFound("clip", body.clip_id)
     if existing is not None:
         raise Conflict(
-            f"this pair is already answered (label {existing}); change it with PUT /labels/{existing}"
+            f"this pair is already answered (label {existing}); whoever answered it, or an admin, can change "
+            f"it with PUT /labels/{existing}"
         )
     now = datetime.now(UTC)
     label = {
@@ -132,6 +133,15 @@ def create_label(session: Session, user_id: int, household_id: int, body: LabelC
     session.commit()
     pair_leases.release((household_id, body.snapshot_id, body.clip_id))
     return {"id": label_id, **label}
+
+
+def check_may_change(label: models.Label, user_id: int, is_admin: bool) -> None:
+    """As with clips: an answer is its labeller's to change or undo, or an admin's."""
+    if label.labeller_id != user_id and not is_admin:
+        raise Forbidden(
+            "only the member who gave this answer (or an admin) may change or undo it; "
+            "ask them, or a household admin"
+        )
 
 
 def change_label(session: Session, label: models.Label, user_id: int, verdict: str) -> models.Label:

@@ -1,22 +1,29 @@
 """Robot camera images: PNG blobs plus the robot state and where they came from."""
 
+import contextlib
 import io
 import json
+import math
 import re
+import time
 from datetime import UTC, datetime
 from typing import Any
 
+import redis
 from PIL import Image, UnidentifiedImageError
 from sqlalchemy import exists, select
 from sqlalchemy.orm import Session
 
 from backend import models
 from backend.blobs import BlobStore, delete_if_unreferenced, sha256_hex
-from backend.errors import Invalid, NotFound
+from backend.broker import redis_client
+from backend.errors import Invalid, NotFound, QuotaExceeded, Unavailable
 
 MAX_SIDE = 4096
 _SIDE_RULE = f"each side must be 1..{MAX_SIDE} pixels; send the camera frame at its own resolution"
 SOURCES = ("sim-capture", "upload", "camera")
+CAPTURE_QUOTA_PREFIX = "varbot:capture-quota:"  # + household id + hour: views asked for in that hour
+_HOUR_S = 3600
 
 
 def get_snapshot(
@@ -73,6 +80,36 @@ def as_png(data: bytes, max_bytes: int) -> tuple[bytes, int, int]:
 def _declared_pixels(bomb: Image.DecompressionBombError) -> str:
     found = re.search(r"\((\d+) pixels\)", str(bomb))
     return f"declares {int(found[1]):,} pixels" if found else "declares far too many pixels"
+
+
+def reserve_capture(household_id: int, count: int, per_hour: int) -> None:
+    """Counts `count` views against the household's hourly capture quota (in Redis, shared by every API
+    process), or refuses them with 429 and when to try again; `refund_capture` gives them back."""
+    now = time.time()
+    key = f"{CAPTURE_QUOTA_PREFIX}{household_id}:{int(now // _HOUR_S)}"
+    try:
+        pipe = redis_client().pipeline(transaction=True)
+        pipe.incrby(key, count)
+        pipe.expire(key, _HOUR_S + 60)
+        used = pipe.execute()[0]
+        if used <= per_hour:
+            return
+        redis_client().decrby(key, count)
+    except redis.RedisError as exc:
+        raise Unavailable(f"the task queue (Redis) is not reachable ({exc}); no views were captured") from exc
+    retry_after = math.ceil(_HOUR_S - now % _HOUR_S)
+    raise QuotaExceeded(
+        f"your household may capture {per_hour} camera views an hour and has {per_hour - (used - count)} "
+        f"left this hour; ask for fewer views, or try again in {math.ceil(retry_after / 60)} min",
+        retry_after,
+    )
+
+
+def refund_capture(household_id: int, count: int) -> None:
+    """Gives back views that were counted but never queued (best effort)."""
+    key = f"{CAPTURE_QUOTA_PREFIX}{household_id}:{int(time.time() // _HOUR_S)}"
+    with contextlib.suppress(redis.RedisError):
+        redis_client().decrby(key, count)
 
 
 def parse_json_field(text: str | None, what: str, expected: type) -> Any:

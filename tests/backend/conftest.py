@@ -245,6 +245,19 @@ def fresh_login_throttle(redis_socket: Path) -> None:
     client.close()
 
 
+@pytest.fixture(autouse=True)
+def fresh_capture_quota(redis_socket: Path) -> None:
+    """Household ids repeat from test to test (each rolls back): start each with no views counted."""
+    import redis
+
+    from backend.services.snapshots import CAPTURE_QUOTA_PREFIX
+
+    client = redis.Redis(unix_socket_path=str(redis_socket))
+    for key in client.scan_iter(f"{CAPTURE_QUOTA_PREFIX}*"):
+        client.delete(key)
+    client.close()
+
+
 @pytest.fixture
 def redis_client(redis_socket: Path):  # type: ignore[no-untyped-def]
     import redis

@@ -2,9 +2,10 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response, status
 from pydantic import BaseModel
+from sqlalchemy.orm import Session
 
 from backend import models, schemas
-from backend.deps import CallerDep, SessionDep
+from backend.deps import Caller, CallerDep, SessionDep
 from backend.schemas import Offset, PathId, QueryId
 from backend.services import labels, pairs, robots, triplets
 
@@ -82,15 +83,21 @@ def get_label(label_id: PathId, caller: CallerDep, session: SessionDep) -> schem
 def change_label(
     label_id: PathId, body: schemas.LabelUpdate, caller: CallerDep, session: SessionDep
 ) -> models.Label:
-    return labels.change_label(
-        session, labels.get_label(session, caller.household_id, label_id), caller.user_id, body.verdict
-    )
+    """Only the member who answered (or an admin) may change an answer."""
+    return labels.change_label(session, _own_label(label_id, caller, session), caller.user_id, body.verdict)
 
 
 @router.delete("/labels/{label_id}", status_code=status.HTTP_204_NO_CONTENT)
 def delete_label(label_id: PathId, caller: CallerDep, session: SessionDep) -> None:
-    """Undo: the label goes, its history (who answered, who removed it, when) stays."""
-    labels.delete_label(session, labels.get_label(session, caller.household_id, label_id), caller.user_id)
+    """Undo (the member who answered, or an admin): the label goes, its history (who answered, who removed it,
+    when) stays."""
+    labels.delete_label(session, _own_label(label_id, caller, session), caller.user_id)
+
+
+def _own_label(label_id: int, caller: Caller, session: Session) -> models.Label:
+    label = labels.get_label(session, caller.household_id, label_id)
+    labels.check_may_change(label, caller.user_id, caller.is_admin)
+    return label
 
 
 @router.get("/triplets/stats", response_model=schemas.TripletStats)

@@ -25,19 +25,22 @@ def capture(
     session: SessionDep,
     settings: SettingsDep,
 ) -> schemas.CaptureQueued:
-    """Ask the robot worker to render `count` camera views from random poses (simulated robots)."""
+    """Ask the robot worker to render `count` camera views from random poses (simulated robots); a household
+    may ask for `capture_views_per_hour` views an hour (429 with Retry-After beyond that)."""
     robot = robots.get_robot(session, caller.household_id, robot_id)
     if not models.RobotKind(robot.kind).simulated:
         raise Conflict(
             f"robot {robot.id} is a real {robot.kind}: it uploads its own frames (POST …/snapshots)"
         )
     if body.count > settings.max_capture_count:
-        raise Invalid(f"at most {settings.max_capture_count} views per request")
+        raise Invalid(f"at most {settings.max_capture_count} views per request; ask for fewer")
+    snapshots.reserve_capture(robot.household_id, body.count, settings.capture_views_per_hour)
     task_id = uuid.uuid4().hex
     kwargs = {"robot_id": robot.id, "household_id": robot.household_id, "count": body.count}
     try:
         broker.send_task(broker.TASK_CAPTURE_SNAPSHOTS, kwargs, broker.QUEUE_ROBOT, task_id)
     except broker.BrokerUnavailable as exc:
+        snapshots.refund_capture(robot.household_id, body.count)
         raise Unavailable(f"{exc}; no views were captured") from exc
     return schemas.CaptureQueued(
         task_id=task_id, robot_id=robot.id, count=body.count, queue=broker.QUEUE_ROBOT
