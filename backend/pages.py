@@ -4,19 +4,20 @@
 - `/`, `/login`, `/record`, `/label`, `/progress`, `/admin`, `/household`, `/scene`: the HTML pages;
 - `/static/…`: their CSS and ES modules (no build step);
 - `/api/v1/system/queues`: queue lengths and the workers that answer (admins; see backend/system_status.py);
-- `/scene/status`: whether the scene can be shown to the signed-in member, and why not;
+- `/scene/status`: whether the scene can be shown to the signed-in member, and why not, and how many
+  scene tabs are open through this app;
 - `/scene/viser/…` (HTTP) and the `/scene/viser` WebSocket: a proxy to the Viser service on 127.0.0.1, open
   only to a signed-in member of the household the scene serves.
 
-The scene service announces where it listens in `data_dir()/scene/endpoint.json` (written by `scene/`);
-`VARBOT_SCENE_URL` overrides it when the scene runs on another machine.
+The scene service runs on this machine and announces in `data_dir()/scene/endpoint.json` (written by
+`scene/`, readable by this user only) where it listens and the headers to present: the scene answers nobody
+who does not present them (`scene/access.py`), so it is watched only through this proxy.
 """
 
 import asyncio
 import contextlib
 import json
-import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -26,6 +27,7 @@ from fastapi import FastAPI, HTTPException, Request, WebSocket, WebSocketDisconn
 from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, Response
 from fastapi.staticfiles import StaticFiles
 from starlette.datastructures import Headers
+from websockets.asyncio.client import ClientConnection
 
 from backend.db import get_session_factory
 from backend.deps import Caller, get_caller
@@ -48,6 +50,7 @@ _HOP_BY_HOP = {
     "host",
     "cookie",
     "content-length",
+    "authorization",  # the member's own credentials stay with the app
 }
 
 
@@ -58,10 +61,27 @@ _CLOSED = (WebSocketDisconnect, websockets.ConnectionClosed)
 class SceneEndpoint:
     url: str  # http://127.0.0.1:port
     household_id: int | None
+    headers: dict[str, str] = field(default_factory=dict)  # to present on every request (the secret)
 
     @property
     def websocket_url(self) -> str:
         return "ws://" + self.url.split("://", 1)[1]
+
+    def upstream_headers(self, incoming: Headers) -> dict[str, str]:
+        """The browser's request headers the scene may see, and the scene's own."""
+        own = {name.lower() for name in self.headers}
+        kept = {k: v for k, v in incoming.items() if k.lower() not in _HOP_BY_HOP and k.lower() not in own}
+        return {**kept, **self.headers}
+
+
+class SceneViewers:
+    """How many scene tabs this app proxies right now; a tab counts until the proxy has finished with it."""
+
+    def __init__(self) -> None:
+        self.open = 0
+
+
+scene_viewers = SceneViewers()
 
 
 def scene_endpoint_file() -> Path:
@@ -69,13 +89,11 @@ def scene_endpoint_file() -> Path:
 
 
 def scene_endpoint() -> SceneEndpoint | None:
-    if override := os.environ.get("VARBOT_SCENE_URL"):
-        household = os.environ.get("VARBOT_SCENE_HOUSEHOLD")
-        return SceneEndpoint(override.rstrip("/"), int(household) if household else None)
     try:
         found = json.loads(scene_endpoint_file().read_text())
-        return SceneEndpoint(str(found["url"]).rstrip("/"), found.get("household_id"))
-    except (OSError, ValueError, KeyError):
+        headers = {str(k): str(v) for k, v in found["headers"].items()}
+        return SceneEndpoint(str(found["url"]).rstrip("/"), found.get("household_id"), headers)
+    except (OSError, ValueError, KeyError, AttributeError):
         return None
 
 
@@ -148,14 +166,14 @@ async def scene_status(request: Request) -> JSONResponse:
     except HTTPException as exc:
         if exc.status_code == status.HTTP_401_UNAUTHORIZED:
             raise
-        return JSONResponse({"available": False, "detail": exc.detail})
-    return JSONResponse({"available": True, "detail": "the scene is running"})
+        return JSONResponse({"available": False, "detail": exc.detail, "viewers": scene_viewers.open})
+    return JSONResponse({"available": True, "detail": "the scene is running", "viewers": scene_viewers.open})
 
 
 async def scene_http(path: str, request: Request) -> Response:
     caller_and_endpoint = await asyncio.to_thread(_scene_caller, request.headers, dict(request.cookies))
     endpoint = caller_and_endpoint[1]
-    forwarded = {k: v for k, v in request.headers.items() if k.lower() not in _HOP_BY_HOP}
+    forwarded = endpoint.upstream_headers(request.headers)
     try:
         async with httpx.AsyncClient(timeout=10) as client:
             upstream = await client.request(
@@ -194,6 +212,7 @@ async def scene_websocket(websocket: WebSocket) -> None:
         upstream = await websockets.connect(
             endpoint.websocket_url,
             subprotocols=offered or None,  # type: ignore[arg-type]
+            additional_headers=endpoint.headers,
             max_size=50 * 1024 * 1024,
             compression=None,
             open_timeout=5,
@@ -201,14 +220,21 @@ async def scene_websocket(websocket: WebSocket) -> None:
     except (OSError, websockets.WebSocketException, TimeoutError):
         await websocket.close(code=status.WS_1011_INTERNAL_ERROR, reason="the 3D scene is not reachable")
         return
-    await websocket.accept(subprotocol=upstream.subprotocol)
+    scene_viewers.open += 1
     try:
+        await websocket.accept(subprotocol=upstream.subprotocol)
         await _pump(websocket, upstream)
+    except _CLOSED:
+        pass  # the tab was closed while the scene was being reached
     finally:
         await upstream.close()
+        scene_viewers.open -= 1  # last: once the count drops, the proxy is done with the tab
 
 
-async def _pump(browser: WebSocket, upstream: Any) -> None:
+async def _pump(browser: WebSocket, upstream: ClientConnection) -> None:
+    """Relay messages both ways until one side is gone, then close the other. A closed tab or a stopped
+    scene is how a connection ends, not an error."""
+
     async def to_scene() -> None:
         while True:
             message = await browser.receive()
@@ -229,15 +255,11 @@ async def _pump(browser: WebSocket, upstream: Any) -> None:
     tasks = [asyncio.create_task(to_scene()), asyncio.create_task(to_browser())]
     try:
         await asyncio.wait(tasks, return_when=asyncio.FIRST_COMPLETED)
-    except _CLOSED:
-        pass
     finally:
         for task in tasks:
             task.cancel()
         for task in tasks:
-            with contextlib.suppress(
-                asyncio.CancelledError, WebSocketDisconnect, websockets.ConnectionClosed
-            ):
+            with contextlib.suppress(asyncio.CancelledError, *_CLOSED):
                 await task
-        with contextlib.suppress(RuntimeError):
-            await browser.close()
+    with contextlib.suppress(RuntimeError, *_CLOSED):  # the tab may be gone already
+        await browser.close()

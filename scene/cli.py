@@ -1,4 +1,5 @@
-"""`varbot scene`: the 3D scene service (Viser on 127.0.0.1; the app proxies it to signed-in members)."""
+"""`varbot scene`: the 3D scene service (Viser on 127.0.0.1 only, open to the app's proxy only, which shows it
+to signed-in members). It runs on the API's machine: it is never reachable from another one."""
 
 import signal
 import threading
@@ -16,9 +17,6 @@ def run_scene(
     robot: Annotated[
         int | None, typer.Option(help="robot id (default: the household's first simulated one)")
     ] = None,
-    host: Annotated[
-        str, typer.Option(help="address Viser listens on; keep it local, the app proxies it")
-    ] = "127.0.0.1",
     port: Annotated[int, typer.Option(help="Viser's port (0: any free port, announced to the API)")] = 0,
     fps: Annotated[
         float, typer.Option(min=1.0, max=60.0, help="simulation and camera frames per second")
@@ -49,7 +47,7 @@ def run_scene(
             err=True,
         )
         raise typer.Exit(1)
-    service = SceneService(household_id, robot_id=robot, host=host, port=port, fps=fps)
+    service = SceneService(household_id, robot_id=robot, port=port, fps=fps)
     signal.signal(signal.SIGTERM, lambda *_: service.stop())
     signal.signal(signal.SIGINT, lambda *_: service.stop())
     typer.echo(f"scene for household {household_id} at {service.url} (reach it through the app at /scene)")

@@ -1,4 +1,5 @@
-"""The scene service: one `viser.ViserServer` on 127.0.0.1 and one simulation loop.
+"""The scene service: one `viser.ViserServer` on 127.0.0.1, open to the app's proxy only (`scene.access`), and
+one simulation loop.
 
 Each tick the robot moves (at random between commands, as in snapshot capture; driven by the active model's
 policy while a command is tried, `scene.trial`), the 3D view follows the simulation (`scene.world_view`), the
@@ -17,10 +18,10 @@ from collections import deque
 from typing import Any
 
 import numpy as np
-import viser
 
 from core.robots import world_of_kind
 from scene import endpoint
+from scene.access import LOOPBACK, guarded_viser_server, new_secret
 from scene.active_model import ActiveModel
 from scene.following import RunFollowing
 from scene.household import HouseholdView
@@ -40,14 +41,14 @@ class SceneService:
         self,
         household_id: int,
         robot_id: int | None = None,
-        host: str = "127.0.0.1",
         port: int = 0,
         fps: float = 15.0,
         follow_timeout_s: float = FOLLOW_TIMEOUT_S,
     ) -> None:
         self.household_id = household_id
         self.fps = fps
-        self.server = viser.ViserServer(host=host, port=port, label="varbot scene", verbose=False)
+        self.secret = new_secret()
+        self.server = guarded_viser_server(self.secret, port)
         self.server.gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
         self.stop_event = threading.Event()
         self.requests: queue.Queue[tuple[str, Any]] = queue.Queue()
@@ -73,7 +74,7 @@ class SceneService:
     # --- lifetime -------------------------------------------------------------------------------------------
     @property
     def url(self) -> str:
-        return f"http://127.0.0.1:{self.server.get_port()}"
+        return f"http://{LOOPBACK}:{self.server.get_port()}"
 
     @property
     def following(self) -> LiveRollout | None:
@@ -81,7 +82,7 @@ class SceneService:
         return self.run_following.current
 
     def run(self) -> None:
-        endpoint.announce(self.url, self.household_id)
+        endpoint.announce(self.url, self.household_id, self.secret)
         self.refresh.once()  # first picture before the loop starts
         self.refresh.start()
         self.run_following.start()
