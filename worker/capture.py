@@ -13,8 +13,8 @@ from backend.db import get_session_factory
 from backend.deps import get_blob_store
 from backend.services.snapshots import create_snapshot
 from core.robots import world_of_kind
+from core.rooms import room_of
 from worker.base_models import BaseModelMissing, find_base
-from worker.pipeline import _domain
 
 
 def capture_views(robot_id: int, household_id: int, count: int, task_id: str | None = None) -> dict:
@@ -30,11 +30,10 @@ def capture_views(robot_id: int, household_id: int, count: int, task_id: str | N
         world = world_of_kind(robot.kind)
         settings = robot.settings or {}
         image_size = int(settings.get("image_size") or _base_image_size(world))
-        domain = _domain(settings)
         seed = secrets.randbits(31)
         created = []
         for index, (image, heard, state) in enumerate(
-            random_views(world, count, seed=seed, image_size=image_size, domain=domain)
+            random_views(world, count, seed=seed, image_size=image_size, domain=room_of(settings))
         ):
             snapshot = create_snapshot(
                 session,

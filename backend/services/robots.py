@@ -1,11 +1,14 @@
 """Robots of a household."""
 
+from typing import Any
+
 from sqlalchemy import exists, select
 from sqlalchemy.orm import Session
 
 from backend import models
-from backend.errors import Conflict, NotFound
+from backend.errors import Conflict, Invalid, NotFound
 from backend.schemas import RobotCreate, RobotPublic, RobotUpdate
+from core.rooms import room_of
 
 
 def get_robot(session: Session, household_id: int, robot_id: int) -> models.Robot:
@@ -35,7 +38,9 @@ def list_robots(session: Session, household_id: int) -> list[models.Robot]:
 
 
 def create_robot(session: Session, household_id: int, body: RobotCreate) -> models.Robot:
-    robot = models.Robot(household_id=household_id, name=body.name, kind=body.kind, settings=body.settings)
+    robot = models.Robot(
+        household_id=household_id, name=body.name, kind=body.kind, settings=_checked(body.settings)
+    )
     session.add(robot)
     session.commit()
     return robot
@@ -45,9 +50,18 @@ def update_robot(session: Session, robot: models.Robot, body: RobotUpdate) -> mo
     if body.name is not None:
         robot.name = body.name
     if body.settings is not None:
-        robot.settings = body.settings
+        robot.settings = _checked(body.settings)
     session.commit()
     return robot
+
+
+def _checked(settings: dict[str, Any]) -> dict[str, Any]:
+    """Settings whose room (`core.rooms`) the worker will be able to build."""
+    try:
+        room_of(settings)
+    except ValueError as error:
+        raise Invalid(str(error)) from None
+    return settings
 
 
 def delete_robot(session: Session, robot: models.Robot) -> None:

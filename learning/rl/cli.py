@@ -173,7 +173,7 @@ def evaluate_command(
         split = split or _first_unheard_split(sounds)
         var_path = var or (payload.get("var_path") if model.config.goal_encoder == "var" else None)
         frozen = load_frozen_var(var_path)
-        goals = corpus_bank(sounds, split)
+        goals = corpus_bank(sounds, split, front_end=frozen.front_end if frozen is not None else "mfcc")
         if frozen is not None:
             goals.embed(frozen)
         result = evaluate(

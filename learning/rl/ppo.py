@@ -372,7 +372,7 @@ class PPOTrainer:
             if self.current_sounds.embeddings is None:
                 self.current_sounds.embed(self.var)
             with torch.inference_mode():
-                silence = self.var.encode_sound(torch.zeros(1, 100, 40))
+                silence = self.var.encode_silence()
             self.current = CurrentSound(self.current_sounds, silence)
 
     def close(self) -> None:

@@ -47,16 +47,16 @@ def shaped_reward(
 
 @dataclass
 class ClipBank:
-    """Sound clips (MFCC features) with their intents (-1 = unknown, e.g. a household recording not matched
-    to an intent) and, when a VAR is given, their f_S embeddings computed once."""
+    """Sound clips (features of the VAR's sound front end) with their intents (-1 = unknown, e.g. a household
+    recording not matched to an intent) and, when a VAR is given, their f_S embeddings computed once."""
 
-    features: np.ndarray  # (N, 100, 40) float32
+    features: np.ndarray  # (N, frames, values) float32: (N, 100, 40) MFCC, (N, frames, 96) speech-embedding
     intents: np.ndarray  # (N,) int64
     embeddings: torch.Tensor | None = None  # (N, d)
 
     def __post_init__(self) -> None:
-        if self.features.ndim != 3 or self.features.shape[1:] != (100, 40):
-            raise ValueError(f"clip features must be shaped (N, 100, 40), got {self.features.shape}")
+        if self.features.ndim != 3:
+            raise ValueError(f"clip features must be shaped (N, frames, values), got {self.features.shape}")
         if len(self.features) == 0:
             raise ValueError("no goal clips: give at least one clip")
         if len(self.intents) != len(self.features):
@@ -92,15 +92,19 @@ class ClipBank:
         return picks
 
 
-def corpus_bank(name: str, splits: str | list[str], data_dir: Path | None = None) -> ClipBank:
+def corpus_bank(
+    name: str, splits: str | list[str], data_dir: Path | None = None, front_end: str = "mfcc"
+) -> ClipBank:
+    """The clips of these splits with the features of `front_end` (the VAR's: `var.front_end`)."""
     from learning.sounds import load_corpus
 
-    corpus = load_corpus(name, data_dir).subset(splits)
+    corpus = load_corpus(name, data_dir, front_end=front_end).subset(splits)
     return ClipBank(np.asarray(corpus.features, dtype=np.float32), np.asarray(corpus.intent, dtype=np.int64))
 
 
-def clip_bank_from_paths(specs: list[str]) -> ClipBank:
-    """`[INTENT:]PATH` entries: a WAV/audio file or a .npy of MFCC features, (100, 40) or (N, 100, 40)."""
+def clip_bank_from_paths(specs: list[str], front_end: str = "mfcc") -> ClipBank:
+    """`[INTENT:]PATH` entries: a WAV/audio file or a .npy of `front_end` features, e.g. MFCC (100, 40) or
+    (N, 100, 40)."""
     from learning.audio import features_from_bytes
 
     features, intents = [], []
@@ -116,7 +120,7 @@ def clip_bank_from_paths(specs: list[str]) -> ClipBank:
             array = np.load(path).astype(np.float32)
             array = array[None] if array.ndim == 2 else array
         else:
-            array = features_from_bytes(path.read_bytes())[None]
+            array = features_from_bytes(path.read_bytes(), front_end=front_end)[None]
         features.append(array)
         intents += [intent] * len(array)
     return ClipBank(np.concatenate(features), np.asarray(intents, dtype=np.int64))

@@ -72,9 +72,10 @@ def make_trainer(
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(json.dumps({**asdict(config), "var_path": str(var_path)}, indent=2))
     var = load_frozen_var(var_path)
+    front_end = var.front_end if var is not None else "mfcc"  # goal clips as the VAR's f_S reads them
     if goals is None:
-        goals = corpus_bank(config.sounds, config.goal_split)
-    current = corpus_bank(config.sounds, "train") if config.current_sound else None
+        goals = corpus_bank(config.sounds, config.goal_split, front_end=front_end)
+    current = corpus_bank(config.sounds, "train", front_end=front_end) if config.current_sound else None
     trainer = PPOTrainer(
         config,
         run_dir,

@@ -45,3 +45,15 @@ def test_robots_of_another_household_are_404(admin, stranger) -> None:
     assert stranger.client.patch(f"/api/v1/robots/{robot}", json={"name": "mine"}).status_code == 404
     assert stranger.client.delete(f"/api/v1/robots/{robot}").status_code == 404
     assert stranger.client.get("/api/v1/robots").json() == []
+
+
+def test_a_room_the_worker_could_not_build_is_refused_saying_why(admin) -> None:
+    kitchen = {"name": "arm", "kind": "kuka-sim", "settings": {"domain": "kitchen"}}
+    refused = admin.client.post("/api/v1/robots", json=kitchen)
+    assert refused.status_code == 422 and "unknown room 'kitchen'" in refused.json()["detail"]
+    robot = make_robot(admin)
+    marble = {"settings": {"domain": {"floor_texture": "marble"}}}
+    refused = admin.client.patch(f"/api/v1/robots/{robot}", json=marble)
+    assert refused.status_code == 422 and "settings.domain.floor_texture" in refused.json()["detail"]
+    moved = admin.client.patch(f"/api/v1/robots/{robot}", json={"settings": {"domain": "unseen_room"}})
+    assert moved.status_code == 200 and moved.json()["settings"] == {"domain": "unseen_room"}

@@ -1,0 +1,149 @@
+"""The three stages of a run, as the run lifecycle (`worker.pipeline`) calls them: each reads the run's
+context, reports progress (which also answers whether a cancel was asked for) and returns its result for
+`state.json`. The work itself is `worker.var_stage`, `worker.policy_stage` and `worker.evaluation`."""
+
+import contextlib
+import math
+import os
+from collections.abc import Callable
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+from backend import models
+from backend.db import get_session_factory
+from backend.deps import get_blob_store
+from worker.evaluation import ModelScore, score_model
+from worker.progress import Cancelled, Progress
+from worker.run_context import RunContext, materialise, materialise_optional
+from worker.var_stage import Diverged
+
+EVAL_NUM_ENVS = int(os.environ.get("VARBOT_EVAL_NUM_ENVS", 4))
+
+
+def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
+    from worker.var_stage import finetune_var
+
+    params = context.params
+
+    def on_epoch(fraction: float, record: dict[str, Any]) -> bool:
+        return progress.update(fraction, {"var": record}, point=record)
+
+    result = finetune_var(
+        context.data,
+        context.parent_var,
+        context.folder / "var",
+        epochs=params["var_epochs"],
+        batch_size=params["var_batch_size"],
+        learning_rate=params["var_learning_rate"],
+        seed=params["seed"],
+        on_epoch=on_epoch,
+    )
+    return {k: str(v) if isinstance(v, Path) else v for k, v in asdict(result).items()}
+
+
+def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
+    from worker.policy_stage import improve_policy
+
+    if context.parent_policy is None:
+        raise ValueError(f"model version {context.parent_id} has no policy to improve")
+
+    def on_update(fraction: float, point: dict[str, Any]) -> bool:
+        for key, value in point.items():
+            if isinstance(value, float) and not math.isfinite(value):
+                raise Diverged(f"{key} became {value} at PPO update {point['update']}")
+        return progress.update(fraction, {"policy": point}, point=point)
+
+    with _live_rollouts(context, "policy_improve") as live:
+        result = improve_policy(
+            context.data,
+            context.parent_policy,
+            context.candidate_var(),
+            context.params["policy_steps"],
+            context.folder / "policy",
+            context.params["seed"],
+            on_update,
+            live,
+        )
+    compact = context.folder / "policy" / "final.pt"
+    _compact_policy(result.checkpoint, compact)
+    return {
+        "checkpoint": str(compact),
+        "env_steps": result.env_steps,
+        "updates": result.updates,
+        "recent_success": result.recent_success,
+        "time_shares": result.summary.get("time_shares"),
+    }
+
+
+def evaluate(context: RunContext, progress: Progress) -> dict[str, Any]:
+    """The candidate (this run's, or for an evaluate run the newest candidate version) against the parent;
+    an evaluate run with no candidate scores the active version alone."""
+    params = context.params
+    per_intent = max(1, math.ceil(params["eval_episodes"] / 4))
+
+    def score(var: Path, policy: Path | None) -> ModelScore:
+        return score_model(
+            context.data, var, policy, context.world, per_intent, context.room, params["seed"] + 7919,
+            EVAL_NUM_ENVS,
+        )  # fmt: skip
+
+    if context.kind == models.RunKind.EVALUATE:
+        if context.candidate_id is None:
+            active = score(context.parent_var, context.parent_policy)
+            progress.update(1.0, {"evaluation": active.to_dict()})
+            return {"candidate": None, "active": active.to_dict()}
+        candidate_var, candidate_policy = _candidate_version_files(context, context.candidate_id)
+    else:
+        candidate_var, candidate_policy = context.candidate_var(), context.candidate_policy()
+    candidate = score(candidate_var, candidate_policy)
+    if progress.update(0.5, {"candidate": candidate.to_dict()}):
+        raise Cancelled("cancel requested during the evaluation")
+    active = score(context.parent_var, context.parent_policy)
+    progress.update(1.0, {"active": active.to_dict()})
+    return {"candidate": candidate.to_dict(), "active": active.to_dict()}
+
+
+STAGES: dict[str, Callable[[RunContext, Progress], dict[str, Any]]] = {
+    "var_finetune": var_finetune,
+    "policy_improve": policy_improve,
+    "evaluate": evaluate,
+}
+
+
+def _live_rollouts(context: RunContext, stage: str) -> Any:
+    """The scene's live view of env 0 (`worker.live`) as a context manager; it gives None (no hook) when
+    VARBOT_LIVE_ROLLOUT_HZ is 0."""
+    from worker.live import ROLLOUT_HZ, RolloutPublisher
+    from worker.policy_stage import goal_clip_ids
+
+    if ROLLOUT_HZ <= 0:
+        return contextlib.nullcontext()
+    return RolloutPublisher(
+        context.household_id, context.run_id, context.robot_id, context.world, stage,
+        goal_clip_ids(context.data),
+    )  # fmt: skip
+
+
+def _candidate_version_files(context: RunContext, version_id: int) -> tuple[Path, Path | None]:
+    blobs = get_blob_store()
+    with get_session_factory()() as session:
+        version = session.get_one(models.ModelVersion, version_id)
+        folder = context.folder / f"candidate-{version.id}"
+        return (
+            materialise(blobs, version.var_key, folder / "var.pt"),
+            materialise_optional(blobs, version.policy_key, folder / "policy.pt"),
+        )
+
+
+def _compact_policy(checkpoint: Path, out: Path) -> None:
+    """The policy without optimiser and RNG state: what a model version needs to act and to improve."""
+    import torch
+
+    from learning.rl.ppo import read_policy_checkpoint
+
+    payload = read_policy_checkpoint(checkpoint)
+    kept = {
+        k: payload[k] for k in ("kind", "config", "policy_config", "policy", "label_counts") if k in payload
+    }
+    torch.save(kept, out)
