@@ -2,7 +2,8 @@
 
 Also: the share of a step spent rendering (time inside PyBullet's getCameraImage), the memory (RSS) of each
 worker process, and for the Kuka the full-detail reference arm next to the default simplified visual model,
-with how many pixels the two differ in. Prints a table and writes bench/results/env_speed.json.
+with how many pixels the two differ in. Prints a table and writes bench/results/env_speed.json (a --quick run
+writes env_speed_quick.json, so it never replaces the full measurement).
 
     .venv/bin/python bench/env_speed.py [--quick]
 """
@@ -26,7 +27,7 @@ from result_files import write_result
 import sim
 from sim.vector import make_vector_env
 
-RESULTS = Path(__file__).resolve().parent / "results" / "env_speed.json"
+RESULTS = Path(__file__).resolve().parent / "results"
 NUM_ENVS = 8
 
 
@@ -158,8 +159,9 @@ def main() -> None:
         f"simplified vs full Kuka arm: {100 * pixels:.2f} % of pixels differ by more than 32 levels"
     )
     console.print(describe(measured))
+    out = RESULTS / ("env_speed_quick.json" if args.quick else "env_speed.json")
     write_result(
-        RESULTS,
+        out,
         {
             "benchmark": "env_speed",
             "quick": args.quick,
@@ -171,7 +173,7 @@ def main() -> None:
             "note": "compare runs only at a similar load average",
         },
     )
-    console.print(f"wrote {RESULTS}")
+    console.print(f"wrote {out}")
 
 
 if __name__ == "__main__":
