@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from core.rooms import DomainShift
 from worker.household import HouseholdData
 from worker.var_stage import triplet_accuracy
 
@@ -58,7 +59,7 @@ def score_model(
     policy_path: Path | None,
     world: str,
     episodes_per_intent: int,
-    domain: Any,
+    room: DomainShift | None,
     seed: int,
     num_envs: int,
 ) -> ModelScore:
@@ -91,7 +92,7 @@ def score_model(
             num_envs=min(num_envs, NUM_INTENTS * episodes_per_intent),
             success_rule=config.get("success_rule"),
             max_steps=config.get("max_episode_steps"),
-            domain=domain,
+            domain=room,
             progress=False,
         )
         score.sim_success = float(result.success_rate)
