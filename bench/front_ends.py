@@ -38,7 +38,7 @@ def parse_arguments() -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--steps", type=int, default=2000, help="VAR training steps per front end")
+    parser.add_argument("--steps", type=int, default=1000, help="VAR training steps per front end")
     parser.add_argument("--views", type=int, default=3000, help="Kuka training views")
     parser.add_argument("--test-views", type=int, default=1000, help="held-out views (another seed)")
     parser.add_argument("--image-size", type=int, default=48)

@@ -142,7 +142,7 @@ def build_base(
     policy, _ = load_policy(policy_dir / "checkpoint.pt")
     evaluations = {}
     for split in unheard[:1]:
-        goals = corpus_bank(sounds, split).embed(var)
+        goals = corpus_bank(sounds, split, front_end=var.front_end).embed(var)
         result = evaluate(
             policy, var, goals, world, image_size, split=split,
             episodes_per_intent=eval_episodes_per_intent, seed=seed + 999, progress=progress,

@@ -1,5 +1,6 @@
 """A household's training data, read from the database and the blob store: camera images, the household's
-recorded commands as MFCC features, and the triplets their pair labels yield.
+recorded commands as features of the VAR's sound front end (MFCC by default), and the triplets their pair
+labels yield.
 
 The triplet rule is the household's (`core.labels`): a snapshot with at least one *is* clip and one *is not*
 clip gives |is| × |is not| triplets; a snapshot answered *is not* for every command is "nothing I said" and
@@ -35,7 +36,7 @@ class HouseholdData:
     images: np.ndarray  # (S, H, W, 3) uint8 at the VAR's image size
     sim_heard: np.ndarray  # (S,) what the simulator says is in view (-1 nothing/several, -2 not simulated)
     clip_ids: np.ndarray  # (C,) every live clip of the household
-    features: np.ndarray  # (C, 100, 40) float32 MFCC
+    features: np.ndarray  # (C, frames, values) float32 features of the VAR's front end: (C, 100, 40) MFCC
     clip_intent: np.ndarray  # (C,) intent inferred from the clip's *is* snapshots (-1 unknown)
     triplets: np.ndarray  # (T, 3): snapshot row, positive clip row (-1 = silence), negative clip row
     held_out: np.ndarray  # (T,) bool: the triplet's snapshot is held out (evaluation only)
@@ -59,7 +60,9 @@ def load_household(
     held_out_fraction: float,
     seed: int,
     min_triplets: int,
+    front_end: str = "mfcc",
 ) -> HouseholdData:
+    """`front_end`: the sound front end of the VAR the data is for (`front_end_of(checkpoint)`)."""
     from learning.audio import features_from_bytes
 
     clips = list(
@@ -88,7 +91,9 @@ def load_household(
     clip_row = {clip.id: row for row, clip in enumerate(clips)}
     images = np.stack([_image(blobs.get(snapshots[sid].image_key), image_size) for sid in used_snapshots])
     sim_heard = np.array([_sim_heard(snapshots[sid]) for sid in used_snapshots], dtype=np.int64)
-    features = np.stack([features_from_bytes(blobs.get(clip.wav_key), feature_kind) for clip in clips])
+    features = np.stack(
+        [features_from_bytes(blobs.get(clip.wav_key), feature_kind, front_end) for clip in clips]
+    )
     triplets = np.array(
         [
             (snapshot_row[s], SILENCE_ROW if p == SILENCE_CLIP else clip_row[p], clip_row[n])

@@ -99,9 +99,9 @@ def finetune_var(
             if len(rows) < 2:  # batch norm cannot train on a single image
                 continue
             images = augment_images(torch.from_numpy(data.images[rows[:, 0]]), generator)
-            sounds = augment_features(
-                torch.cat([sound_batch(data, rows[:, 1]), sound_batch(data, rows[:, 2])]), generator
-            )
+            sounds = torch.cat([sound_batch(data, rows[:, 1]), sound_batch(data, rows[:, 2])])
+            if var.front_end == "mfcc":  # gain, frame shift and SpecAugment are MFCC augmentations
+                sounds = augment_features(sounds, generator)
             positive, negative = var.encode_sound(sounds).split(len(rows))
             loss = triplet_loss(var.encode_image(images), positive, negative, margin)
             if not torch.isfinite(loss):

@@ -15,6 +15,7 @@ from typing import Any
 from learning.rl.ppo import PPOConfig, read_policy_checkpoint
 from learning.rl.rewards import ClipBank, clip_bank_from_paths
 from learning.rl.run import train_run
+from learning.var.checkpoint import front_end_of
 
 
 def improve(
@@ -32,7 +33,7 @@ def improve(
     base = PPOConfig.from_dict(payload["config"])
     if base.goal_encoder != "var":
         raise ValueError("self-improvement needs a policy trained with the VAR (method `var`)")
-    bank = goals if isinstance(goals, ClipBank) else clip_bank_from_paths(goals)
+    bank = goals if isinstance(goals, ClipBank) else clip_bank_from_paths(goals, front_end_of(var_path))
     batch = base.num_envs * base.num_steps
     if steps < batch:
         raise ValueError(f"the step budget ({steps}) is smaller than one PPO update ({batch} steps)")

@@ -72,6 +72,11 @@ def _front_end_difference(wanted: str, saved: str) -> str:
     )
 
 
+def front_end_of(path: str | Path) -> str:
+    """The sound front end of the VAR at `path`: what its clips' features must be computed with."""
+    return VARConfig.from_dict(read_checkpoint(path)["config"]).front_end
+
+
 def check_front_end(payload: dict[str, Any], front_end: str | None, path: str | Path) -> None:
     """Refuse a checkpoint whose sound front end is not the one the caller's features come from."""
     saved = VARConfig.from_dict(payload["config"]).front_end

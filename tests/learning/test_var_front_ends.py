@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 import torch
 
-from learning.rl.rewards import intrinsic_reward_from_embeddings
+from learning.rl.rewards import CurrentSound, corpus_bank, intrinsic_reward_from_embeddings
+from learning.sounds import load_corpus
+from learning.sounds.build import build_corpora
 from learning.var.checkpoint import (
     CheckpointMismatchError,
     load_state_into,
@@ -13,7 +15,11 @@ from learning.var.checkpoint import (
     read_checkpoint,
     save_var,
 )
+from learning.var.dataset import collect_dataset
+from learning.var.evaluate import nearest_command_accuracy
+from learning.var.finetune import finetune_config
 from learning.var.model import VAR, EmbeddingSoundEncoder, SoundEncoder, VARConfig
+from learning.var.train import TrainConfig, train
 
 EMBEDDING = "speech-embedding"
 MFCC_VAR = VARConfig(image_size=32)
@@ -116,3 +122,59 @@ def test_a_checkpoint_from_before_front_ends_loads_as_mfcc_and_serves(tmp_path) 
     torch.testing.assert_close(old.encode_sound(mfcc), var.encode_sound(mfcc))
     with pytest.raises(CheckpointMismatchError, match="reads 'mfcc' features, but 'speech-embedding'"):
         load_var(path, front_end=EMBEDDING)
+
+
+# ---------------------------------------------------------------- end to end, on a real small corpus
+
+
+@pytest.fixture(scope="module")
+def wordset_embedded():
+    build_corpora(["wordset"], profile="small", progress=False, log=lambda _: None)
+    return load_corpus("wordset", front_end=EMBEDDING)
+
+
+@pytest.fixture(scope="module")
+def trained(wordset_embedded, tmp_path_factory):
+    """A tiny speech-embedding VAR: the views and settings of test_var_training's MFCC run."""
+    collect_dataset("kuka", 1500, "test-var-kuka-train", seed=0, image_size=40, workers=2, progress=False)
+    config = TrainConfig(
+        dataset="test-var-kuka-train", sounds="wordset", run_dir=str(tmp_path_factory.mktemp("embedding")),
+        model=VARConfig(front_end=EMBEDDING), max_steps=250, batch_size=64, lr=3e-3, warmup_steps=10,
+        log_every_steps=5, checkpoint_every_steps=50, threads=1, progress=False,
+    )  # fmt: skip
+    return train(config)
+
+
+def test_a_speech_embedding_var_trains_and_reads_unheard_voices(trained, wordset_embedded) -> None:
+    var = load_var(trained.checkpoint, manifest_hash=wordset_embedded.manifest_hash, front_end=EMBEDDING)
+    train_clips = wordset_embedded.subset("train")
+    for tier in ("unheard-easy", "unheard-real-voices"):
+        accuracy, _ = nearest_command_accuracy(var, train_clips, wordset_embedded.subset(tier), 4)
+        assert accuracy > 0.6, (tier, accuracy)  # chance: 0.25
+    assert trained.final_val_accuracy > 0.8
+
+
+def test_the_goal_clips_of_a_run_are_featurised_with_the_vars_front_end(trained) -> None:
+    """corpus → features → VAR → goal embeddings and S_t, as `varbot rl train` builds them."""
+    var = load_var(trained.checkpoint)
+    goals = corpus_bank("wordset", "unheard-easy", front_end=var.front_end).embed(var)
+    assert goals.features.shape[1:] == (11, 96)
+    torch.testing.assert_close(goals.embeddings.norm(dim=1), torch.ones(len(goals.features)))
+    heard_now = CurrentSound(
+        corpus_bank("wordset", "train", front_end=var.front_end).embed(var), var.encode_silence()
+    )
+    nothing_heard = heard_now.embeddings(np.array([-1, 2]), np.random.default_rng(0))
+    torch.testing.assert_close(nothing_heard[0], var.encode_silence()[0])
+    assert nothing_heard[1] in heard_now.bank.embeddings
+    with pytest.raises(ValueError, match="this VAR's sound front end is 'speech-embedding'"):
+        corpus_bank("wordset", "unheard-easy").embed(var)
+
+
+def test_fine_tuning_keeps_the_checkpoints_front_end(trained, tmp_path) -> None:
+    config = finetune_config(
+        trained.checkpoint, "test-var-kuka-train", "wordset", tmp_path / "finetune", max_steps=20,
+        threads=1, progress=False,
+    )  # fmt: skip
+    assert config.model.front_end == EMBEDDING
+    result = train(config)
+    assert load_var(result.checkpoint, front_end=EMBEDDING).front_end == EMBEDDING
