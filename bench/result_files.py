@@ -10,6 +10,7 @@ string is rewritten, so an annotated path ("/…/final.pt (6 epochs)") is too.
 import json
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 
 from core.paths import REPO_ROOT, data_dir
@@ -32,15 +33,20 @@ def relative_path(path: str | Path) -> str:
     return f"(outside the repository) {path.name}"
 
 
-def relative_paths(value: object) -> object:
-    """A JSON value with every absolute path in its strings made relative (dict keys included)."""
+def map_strings(value: object, change: Callable[[str], str]) -> object:
+    """A JSON value with `change` applied to every string in it, dict keys included."""
     if isinstance(value, str):
-        return ABSOLUTE_PATH.sub(lambda match: relative_path(match.group()), value)
+        return change(value)
     if isinstance(value, dict):
-        return {relative_paths(key): relative_paths(item) for key, item in value.items()}
+        return {change(key): map_strings(item, change) for key, item in value.items()}
     if isinstance(value, list | tuple):
-        return [relative_paths(item) for item in value]
+        return [map_strings(item, change) for item in value]
     return value
+
+
+def relative_paths(value: object) -> object:
+    """A JSON value with every absolute path in its strings made relative."""
+    return map_strings(value, lambda text: ABSOLUTE_PATH.sub(lambda path: relative_path(path[0]), text))
 
 
 def resolve(written: str) -> Path:

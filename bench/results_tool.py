@@ -12,7 +12,7 @@ import json
 import re
 from pathlib import Path
 
-from result_files import write_result
+from result_files import map_strings, write_result
 
 RESULTS = Path(__file__).resolve().parent / "results"
 OWNED_ELSEWHERE = {"reproduce.json": "bench/reproduce.py records relativise-paths --why …"}
@@ -21,13 +21,7 @@ LOAD_CLAIM = re.compile(r",? *shared with other (?:agents'? ?)?(?:jobs)?(?: whil
 
 
 def without_load_claims(value: object) -> object:
-    if isinstance(value, str):
-        return LOAD_CLAIM.sub("", value)
-    if isinstance(value, dict):
-        return {key: without_load_claims(item) for key, item in value.items()}
-    if isinstance(value, list):
-        return [without_load_claims(item) for item in value]
-    return value
+    return map_strings(value, lambda text: LOAD_CLAIM.sub("", text))
 
 
 def rewrite(path: Path, change) -> bool:
