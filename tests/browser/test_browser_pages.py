@@ -1,10 +1,7 @@
 """The pages in a real Chromium: sign in, record with a fake microphone, label by keyboard, household, admin
 and progress (live through Server-Sent Events), accessibility basics. Screenshots go to tests/artifacts/."""
 
-import importlib.util
 import re
-import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -20,9 +17,11 @@ from browser_helpers import (
     tone_wav,
     upload_clip,
     upload_views,
-    wait_until,
     wait_until_ready,
 )
+from playwright.sync_api import TimeoutError as PlaywrightTimeout
+
+from varbot.services import wait_until, worker_service
 
 pytestmark = pytest.mark.browser
 PAGES = ["record", "label", "progress", "household", "admin", "scene"]
@@ -56,13 +55,11 @@ def test_recording_with_the_microphone_keeps_a_clip_that_plays(page, stack: Stac
     page.get_by_role("button", name="Hold to talk").focus()
     page.keyboard.down("Space")
     page.get_by_text("Recording…", exact=True).wait_for()
-    levels = []
-    for _ in range(16):  # the meter follows the voice while the button is held
-        levels.append(int(page.locator("[role=meter]").get_attribute("aria-valuenow") or 0))
-        page.wait_for_timeout(100)
+    # the meter follows the voice while the button is held
+    page.wait_for_function("Number(document.querySelector('[role=meter]').getAttribute('aria-valuenow')) > 5")
+    keep_holding(page, seconds=1.6)
     page.keyboard.up("Space")
     page.get_by_text(re.compile(r"Recorded \d\.\d s")).wait_for()
-    assert max(levels) > 5, f"the level meter never moved: {levels}"
     preview_seconds = page.evaluate(
         """async () => { const a = document.getElementById('take-audio');
             await new Promise(r => a.readyState >= 1 ? r() : a.addEventListener('loadedmetadata', r));
@@ -74,11 +71,10 @@ def test_recording_with_the_microphone_keeps_a_clip_that_plays(page, stack: Stac
     assert stack.count("clips") == before + 1
     item = page.locator("#clips li").first
     assert "zero" in item.inner_text()
-    played = item.locator("audio").evaluate(
-        """async (a) => { await a.play(); await new Promise(r => setTimeout(r, 700));
-            return {time: a.currentTime, error: a.error && a.error.code}; }"""
-    )
-    assert played["error"] is None and played["time"] > 0.2
+    audio = item.locator("audio").element_handle()
+    audio.evaluate("a => { a.play(); }")
+    page.wait_for_function("a => a.currentTime > 0.2 || a.error !== null", arg=audio)
+    assert audio.evaluate("a => a.error && a.error.code") is None
     screenshot(page, "record")
 
 
@@ -100,11 +96,13 @@ def _hold(page, pattern: str) -> list:
 
 
 def _wait_for(page, held: list, what: str) -> None:
-    for _ in range(200):  # Playwright hands over a held request only while it is called
-        if held:
-            return
-        page.wait_for_timeout(50)
-    raise AssertionError(f"the page never {what}")
+    """Until the page made the held request (Playwright hands it over only during a call of its own)."""
+    wait_until(lambda: held or page.evaluate("false"), 10, f"the page to have {what}")
+
+
+def keep_holding(page, seconds: float) -> None:
+    """A person keeps the key down this long: here time is the input, not a wait for the page."""
+    page.wait_for_function(f"performance.now() >= {page.evaluate('performance.now()') + 1000 * seconds}")
 
 
 def _main_is_inert(page) -> bool:
@@ -183,7 +181,7 @@ def test_a_silent_microphone_and_a_refused_microphone_each_get_a_way_forward(
             page.keyboard.down("Space")
             if name == "silent":
                 page.get_by_text("Recording…", exact=True).wait_for()  # the microphone is open
-            page.wait_for_timeout(900)
+                keep_holding(page, seconds=0.9)  # long enough to count as a take, not a tap
             page.keyboard.up("Space")
             page.locator("#take-message").get_by_text(expected[name]).wait_for()
             if name == "denied":
@@ -204,10 +202,10 @@ def test_labelling_ten_pairs_by_keyboard_and_undoing_one_leaves_nine_labels(
     camera = page.locator("#camera")
     camera.wait_for()
     wait_until(lambda: camera.evaluate("img => img.complete && img.naturalWidth > 0"), 10, "the camera image")
-    audio_playing = page.locator("#clip").evaluate(
-        "a => new Promise(r => setTimeout(() => r(!a.paused || a.ended || a.currentTime > 0), 600))"
-    )
-    assert audio_playing, "the command did not play by itself"
+    try:
+        page.wait_for_function("document.getElementById('clip').currentTime > 0", timeout=10_000)
+    except PlaywrightTimeout:
+        raise AssertionError("the command did not play by itself") from None
     counter = page.locator("#session-count")
     for index in range(10):
         shown = page.evaluate("document.body.dataset.pair")
@@ -299,32 +297,13 @@ def test_a_queued_run_is_cancelled_from_admin_and_progress_follows_live(
     screenshot(progress, "progress-cancelled")
 
 
-@pytest.mark.skipif(
-    importlib.util.find_spec("worker.tasks") is None,
-    reason="needs the Celery tasks of issue 7 (worker/tasks.py, imported by worker.celery_app)",
-)
 def test_a_quick_run_started_by_an_admin_moves_the_progress_bar_to_done(
     page, stack: Stack, tmp_path: Path
 ) -> None:
     with stack.client() as alice:
         robot = alice.post("/robots", json={"name": "trained arm", "kind": "kuka-sim"}).json()["id"]
     _label_for_triplets(stack, robot, tmp_path, 22)
-    worker = stack.start(
-        "worker-training",
-        [
-            *(
-                sys.executable,
-                "-m",
-                "celery",
-                "-A",
-                "worker.celery_app:app",
-                "worker",
-                "-Q",
-                "training,robot",
-            ),
-            *("--concurrency", "1", "--prefetch-multiplier", "1", "--loglevel", "INFO"),
-        ],
-    )
+    worker = stack.start(worker_service("training", stack.data_dir, "worker-training"))
     try:
         open_page(page, f"{stack.url}/admin")
         page.get_by_label("Robot", exact=True).select_option(str(robot))
@@ -335,24 +314,19 @@ def test_a_quick_run_started_by_an_admin_moves_the_progress_bar_to_done(
         started.wait_for()
         run_id = int(re.search(r"Run (\d+)", started.inner_text()).group(1))  # type: ignore[union-attr]
         open_page(page, f"{stack.url}/progress")
-        bar = page.locator(f"[data-run-id='{run_id}'] progress")
-        seen: set[float] = set()
-        stages: set[str] = set()
-        deadline = time.monotonic() + 170
-        while time.monotonic() < deadline:
-            seen.add(float(bar.get_attribute("value") or 0))
-            stages.add(page.locator(f"[data-run-id='{run_id}'] p.muted").first.inner_text().split("·")[0])
-            if page.locator(f"[data-run-id='{run_id}'] .status-pill.succeeded").count():
-                break
-            assert worker.poll() is None, stack.log("worker-training")
-            page.wait_for_timeout(500)
-        assert page.locator(f"[data-run-id='{run_id}'] .status-pill.succeeded").count() == 1, stack.log(
-            "worker-training"
-        )
-        assert float(bar.get_attribute("value") or 0) == 1.0
-        # live updates arrived while it ran: intermediate bar values or at least the stage names changing
-        assert len(seen) > 2 or len(stages) > 2, f"no live updates: bar {sorted(seen)}, stages {stages}"
         card = page.locator(f"[data-run-id='{run_id}']")
+        page.evaluate(RECORD_CARD_STATES, run_id)
+        try:
+            card.locator(".status-pill.succeeded").wait_for(timeout=170_000)
+        except PlaywrightTimeout:
+            raise AssertionError(f"run {run_id} did not succeed:\n{stack.log('worker-training')}") from None
+        bar = card.locator("progress")
+        assert float(bar.get_attribute("value") or 0) == 1.0
+        states = page.evaluate("[...window.cardStates]")
+        values = {value for value, _ in states}
+        stages = {stage for _, stage in states}
+        # live updates arrived while it ran: intermediate bar values or at least the stage names changing
+        assert len(values) > 2 or len(stages) > 2, f"no live updates: {states}"
         # the promotion gate's verdict and its reasons, the saved training curves, the before/after figure
         gate_message = card.locator(".message").filter(has_text=re.compile(r"^(Promoted|Not promoted)"))
         verdict = gate_message.inner_text()
@@ -364,8 +338,24 @@ def test_a_quick_run_started_by_an_admin_moves_the_progress_bar_to_done(
         assert card.locator("figure.before-after").count() == 1
         screenshot(page, "progress")
     finally:
-        worker.terminate()
-        worker.wait(20)
+        worker.stop()
+
+
+# Every change of a run card (its bar's value and its stage), as the page shows them: window.cardStates.
+RECORD_CARD_STATES = """(id) => {
+  window.cardStates = [];
+  const record = () => {
+    const card = document.querySelector(`[data-run-id='${id}']`);
+    if (!card) return;
+    const state = [String(card.querySelector('progress')?.value),
+                   (card.querySelector('p.muted')?.textContent || '').split('·')[0]];
+    const last = window.cardStates[window.cardStates.length - 1];
+    if (!last || last[0] !== state[0] || last[1] !== state[1]) window.cardStates.push(state);
+  };
+  record();
+  new MutationObserver(record).observe(document.body,
+    {subtree: true, childList: true, attributes: true, characterData: true});
+}"""
 
 
 def test_every_control_is_labelled_and_reachable_by_keyboard(page, stack: Stack) -> None:
