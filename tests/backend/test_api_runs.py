@@ -2,10 +2,11 @@
 
 import json
 import threading
-import time
 
 import pytest
 from apitest_helpers import make_robot, queued_tasks
+
+from varbot.services import wait_until
 
 
 @pytest.fixture
@@ -140,11 +141,13 @@ def test_the_event_stream_sends_current_runs_then_updates_from_redis(
         run, status="running", stage="evaluating", progress=0.5, updated_at="2999-01-01T00:00:00+00:00"
     )
 
-    def worker_publishes() -> None:
-        time.sleep(0.8)
-        broker.publish(broker.run_channel(admin.household_id), {"type": "run", "run": update})
+    def worker_publishes_once_the_stream_listens() -> None:
+        channel = broker.run_channel(admin.household_id)
+        listening = lambda: broker.redis_client().pubsub_numsub(channel)[0][1] > 0  # noqa: E731
+        wait_until(listening, 10, "the event stream to subscribe to its channel", interval=0.02)
+        broker.publish(channel, {"type": "run", "run": update})
 
-    threading.Thread(target=worker_publishes).start()
+    threading.Thread(target=worker_publishes_once_the_stream_listens).start()
     response = member.client.get("/api/v1/runs/events?timeout=2")
     assert response.headers["content-type"].startswith("text/event-stream")
     events = _events(response.text)
