@@ -25,6 +25,7 @@ from PIL import Image
 from varbot.services import wait_until
 
 VISER_PROTOCOL = f"viser-v{viser.__version__}"  # the viewer's subprotocol: Viser refuses another version
+CAMERA_UPDATES = 20  # new camera images the browser must receive (and the frame rate is measured over)
 
 pytestmark = pytest.mark.browser
 
@@ -122,19 +123,27 @@ def test_the_scene_shows_the_sphere_and_a_live_camera(page, scene_ready: Stack, 
     assert first.std() > 20 and len(np.unique(first.reshape(-1, 3), axis=0)) > 200, "the scene looks blank"
 
     # Count the camera panel's image updates inside the page itself (a MutationObserver on <img src>), so that
-    # the measurement does not add a round trip per sample.
+    # the measurement does not add a round trip per sample: until CAMERA_UPDATES came (at most 60 s, so that a
+    # stream that stopped fails instead of hanging), and how long they took.
     camera_panel = frame.get_by_text("What the robot sees").locator("xpath=..")
-    updates = camera_panel.evaluate(
-        """(panel) => new Promise((resolve) => {
+    seen = camera_panel.evaluate(
+        """(panel, wanted) => new Promise((resolve) => {
+            const started = performance.now();
             let count = 0;
+            const finish = () => {
+                observer.disconnect();
+                resolve({ count, seconds: (performance.now() - started) / 1000 });
+            };
             const observer = new MutationObserver((changes) => {
                 count += changes.filter(c => c.attributeName === 'src').length;
+                if (count >= wanted) finish();
             });
             observer.observe(panel, { attributes: true, subtree: true, attributeFilter: ['src'] });
-            setTimeout(() => { observer.disconnect(); resolve(count); }, 5000);
-        })"""
+            setTimeout(finish, 60000);
+        })""",
+        CAMERA_UPDATES,
     )
-    browser_fps = updates / 5.0
+    updates, browser_fps = seen["count"], seen["count"] / seen["seconds"]
     second = _frame_png(page)
     assert np.abs(second - first).mean() > 0.05, "nothing moved in the scene"
     reported = float(status.inner_text().split("frames/s")[0].split("·")[-1].strip())
@@ -148,4 +157,4 @@ def test_the_scene_shows_the_sphere_and_a_live_camera(page, scene_ready: Stack, 
     # Frame rates are measured (written above), not asserted: they depend on the machine's
     # load. What must hold anywhere: the loop runs and the browser keeps receiving new camera images.
     assert reported > 0, "the scene loop reports no frames"
-    assert updates >= 5, f"the camera image changed only {updates} times in 5 s in the browser"
+    assert updates >= CAMERA_UPDATES, f"the camera image changed only {updates} times in 60 s in the browser"
