@@ -3,6 +3,7 @@
 from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
+from backend.api.responses import document_errors
 from backend.api.routes import auth, clips, health, labels, members, models, robots, runs, snapshots
 from backend.blobs import BlobNotFound
 from backend.errors import ApiError
@@ -23,6 +24,7 @@ def create_app() -> FastAPI:
     for module in (auth, members, robots, clips, snapshots, labels, runs, models, health):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(health.router, include_in_schema=False)  # plain /health for process supervisors
+    document_errors(app)
     install_pages(app)  # the pages (frontend/) and the signed-in proxy to the 3D scene
 
     @app.exception_handler(ApiError)

@@ -28,6 +28,24 @@ class Message(BaseModel):
     detail: str
 
 
+class ValidationIssue(BaseModel):
+    """One problem found in a malformed request (FastAPI's validation error)."""
+
+    model_config = ConfigDict(extra="allow")
+    loc: list[str | int]
+    msg: str
+    type: str
+
+
+class Refusal(BaseModel):
+    """The body of every 422."""
+
+    detail: str | list[ValidationIssue] = Field(
+        description="What to change: a sentence when the request was well formed but refused, or one entry "
+        "per field when it was malformed."
+    )
+
+
 # --- accounts -----------------------------------------------------------------------------------------------
 
 

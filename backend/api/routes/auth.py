@@ -5,6 +5,7 @@ from fastapi.concurrency import run_in_threadpool
 from fastapi.security import OAuth2PasswordRequestForm
 
 from backend import models, schemas
+from backend.api.responses import errors
 from backend.deps import CallerDep, SessionDep, SettingsDep
 from backend.schemas import PathId
 from backend.security import CSRF_COOKIE, SESSION_COOKIE
@@ -16,6 +17,7 @@ router = APIRouter(prefix="/auth", tags=["auth"])
 _WRONG = "wrong username or password"
 # Documented for clients: what a sign-in may answer besides 200 and 401.
 _SIGN_IN_REFUSALS = {
+    401: {"model": schemas.Message, "description": "Wrong username or password."},
     429: {"description": "Too many wrong passwords for this account or address: wait `Retry-After` seconds."},
     503: {"description": "Too many sign-ins waiting to be checked: wait `Retry-After` seconds."},
 }
@@ -98,7 +100,7 @@ def me(caller: CallerDep):  # type: ignore[no-untyped-def]
     return caller.user
 
 
-@router.patch("/me", response_model=schemas.UserPublic)
+@router.patch("/me", response_model=schemas.UserPublic, responses=errors(429, 503))
 def update_me(body: schemas.MeUpdate, caller: CallerDep, session: SessionDep, settings: SettingsDep):  # type: ignore[no-untyped-def]
     """A new password (with the current one) signs out every other session of yours; this one stays."""
     return accounts.update_me(session, caller.user, body, settings, caller.auth_session)

@@ -4,6 +4,7 @@ from fastapi import APIRouter, File, Form, Query, Request, Response, UploadFile,
 
 from backend import audio, models, schemas
 from backend.api.ranges import ranged_response
+from backend.api.responses import errors
 from backend.deps import BlobsDep, CallerDep, SessionDep, SettingsDep
 from backend.schemas import Offset, PathId, QueryId
 from backend.services import clips
@@ -12,7 +13,9 @@ from backend.services.clips import ClipRejected
 router = APIRouter(prefix="/clips", tags=["clips"])
 
 
-@router.post("", response_model=schemas.ClipPublic, status_code=status.HTTP_201_CREATED)
+@router.post(
+    "", response_model=schemas.ClipPublic, status_code=status.HTTP_201_CREATED, responses=errors(413, 415)
+)
 def upload_clip(
     file: Annotated[UploadFile, File(description=f"a recording ({audio.ACCEPTED}), 0.3–10 s, at most 5 MB")],
     caller: CallerDep,
@@ -52,7 +55,7 @@ def get_clip(clip_id: PathId, caller: CallerDep, session: SessionDep) -> models.
     response_class=Response,
     responses={
         200: {"content": {media_type: {} for media_type in audio.MEDIA_TYPES.values()}},
-        206: {"description": "the requested byte range"},
+        **errors(206, 304, 410, 416),
     },
 )
 def clip_audio(

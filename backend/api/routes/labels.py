@@ -5,6 +5,7 @@ from pydantic import BaseModel
 from sqlalchemy.orm import Session
 
 from backend import models, schemas
+from backend.api.responses import errors
 from backend.deps import Caller, CallerDep, SessionDep
 from backend.schemas import Offset, PathId, QueryId
 from backend.services import labels, pairs, robots, triplets
@@ -18,7 +19,7 @@ def _json(body: BaseModel, status_code: int = status.HTTP_200_OK) -> Response:
     return Response(body.model_dump_json(), status_code=status_code, media_type="application/json")
 
 
-@router.get("/labels/next", response_model=schemas.NextPair)
+@router.get("/labels/next", response_model=schemas.NextPair, responses=errors(404))
 def next_pair(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) -> Response:
     """The next (image, command) pair to ask about: never one already answered, balanced across the
     household's commands, and (once an active model has embedded the data) the image that sits most
@@ -47,7 +48,12 @@ def next_pair(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) 
     )
 
 
-@router.post("/labels", response_model=schemas.LabelPublic, status_code=status.HTTP_201_CREATED)
+@router.post(
+    "/labels",
+    response_model=schemas.LabelPublic,
+    status_code=status.HTTP_201_CREATED,
+    responses=errors(404, 409),
+)
 def create_label(body: schemas.LabelCreate, caller: CallerDep, session: SessionDep) -> Response:
     label = labels.create_label(session, caller.user_id, caller.household_id, body)
     return _json(schemas.LabelPublic.model_validate(label), status.HTTP_201_CREATED)
@@ -100,7 +106,7 @@ def _own_label(label_id: int, caller: Caller, session: Session) -> models.Label:
     return label
 
 
-@router.get("/triplets/stats", response_model=schemas.TripletStats)
+@router.get("/triplets/stats", response_model=schemas.TripletStats, responses=errors(404))
 def triplet_stats(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) -> schemas.TripletStats:
     """How many triplets the labels yield, per command and per member (the rule is core/labels.py)."""
     if robot_id is not None:

@@ -1,6 +1,7 @@
 from fastapi import APIRouter
 
 from backend import schemas
+from backend.api.responses import errors
 from backend.deps import AdminDep, CallerDep, SessionDep
 from backend.schemas import PathId
 from backend.services import model_versions, robots
@@ -16,7 +17,9 @@ def list_versions(
     return [model_versions.public(v) for v in model_versions.list_versions(session, robot)]
 
 
-@router.post("/robots/{robot_id}/models:rollback", response_model=schemas.ModelVersionPublic)
+@router.post(
+    "/robots/{robot_id}/models:rollback", response_model=schemas.ModelVersionPublic, responses=errors(409)
+)
 def rollback(robot_id: PathId, caller: AdminDep, session: SessionDep) -> schemas.ModelVersionPublic:
     """Make the version that was active before the current one active again (admins)."""
     robot = robots.get_robot(session, caller.household_id, robot_id)
@@ -28,7 +31,9 @@ def get_version(version_id: PathId, caller: CallerDep, session: SessionDep) -> s
     return model_versions.public(model_versions.get_version(session, caller.household_id, version_id))
 
 
-@router.post("/models/{version_id}:activate", response_model=schemas.ModelVersionPublic)
+@router.post(
+    "/models/{version_id}:activate", response_model=schemas.ModelVersionPublic, responses=errors(409)
+)
 def activate(version_id: PathId, caller: AdminDep, session: SessionDep) -> schemas.ModelVersionPublic:
     version = model_versions.get_version(session, caller.household_id, version_id)
     return model_versions.public(model_versions.activate(session, version))

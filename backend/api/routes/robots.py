@@ -1,6 +1,7 @@
 from fastapi import APIRouter, status
 
 from backend import schemas
+from backend.api.responses import errors
 from backend.deps import AdminDep, CallerDep, SessionDep
 from backend.schemas import PathId
 from backend.services import robots
@@ -33,6 +34,6 @@ def update_robot(
     return robots.public(robot, robots.active_model_ids(session, caller.household_id))
 
 
-@router.delete("/{robot_id}", status_code=status.HTTP_204_NO_CONTENT)
+@router.delete("/{robot_id}", status_code=status.HTTP_204_NO_CONTENT, responses=errors(409))
 def delete_robot(robot_id: PathId, caller: AdminDep, session: SessionDep) -> None:
     robots.delete_robot(session, robots.get_robot(session, caller.household_id, robot_id))

@@ -12,6 +12,7 @@ from fastapi.responses import StreamingResponse
 from sqlalchemy import select
 
 from backend import broker, models, schemas
+from backend.api.responses import errors
 from backend.deps import AdminDep, CallerDep, SessionDep, SessionFactoryDep, SettingsDep
 from backend.models import RunStatus
 from backend.schemas import Offset, PathId, QueryId
@@ -29,7 +30,9 @@ def presets() -> dict[str, Any]:
     return runs.PRESETS
 
 
-@router.post("", response_model=schemas.RunPublic, status_code=status.HTTP_201_CREATED)
+@router.post(
+    "", response_model=schemas.RunPublic, status_code=status.HTTP_201_CREATED, responses=errors(404, 409, 503)
+)
 def create_run(
     body: schemas.RunCreate, caller: AdminDep, session: SessionDep, settings: SettingsDep
 ) -> models.Run:
@@ -50,7 +53,9 @@ def list_runs(
 
 
 @router.get(
-    "/events", response_class=StreamingResponse, responses={200: {"content": {"text/event-stream": {}}}}
+    "/events",
+    response_class=StreamingResponse,
+    responses={200: {"content": {"text/event-stream": {}}}, **errors(404)},
 )
 async def run_events(
     request: Request,
@@ -168,7 +173,7 @@ def get_run(run_id: PathId, caller: CallerDep, session: SessionDep) -> models.Ru
     return runs.get_run(session, caller.household_id, run_id)
 
 
-@router.post("/{run_id}:cancel", response_model=schemas.RunPublic)
+@router.post("/{run_id}:cancel", response_model=schemas.RunPublic, responses=errors(409))
 def cancel_run(run_id: PathId, caller: AdminDep, session: SessionDep) -> models.Run:
     """Queued runs are cancelled at once; a running one stops at its next check of the cancel flag."""
     return runs.cancel_run(session, runs.get_run(session, caller.household_id, run_id))

@@ -5,6 +5,7 @@ from fastapi import APIRouter, File, Form, Query, Request, Response, UploadFile,
 
 from backend import broker, models, schemas
 from backend.api.ranges import ranged_response
+from backend.api.responses import errors
 from backend.deps import BlobsDep, CallerDep, SessionDep, SettingsDep
 from backend.errors import Conflict, Invalid, Unavailable
 from backend.schemas import Offset, PathId, QueryId
@@ -17,6 +18,7 @@ router = APIRouter(tags=["snapshots"])
     "/robots/{robot_id}/snapshots:capture",
     response_model=schemas.CaptureQueued,
     status_code=status.HTTP_202_ACCEPTED,
+    responses=errors(409, 429, 503),
 )
 def capture(
     robot_id: PathId,
@@ -92,7 +94,9 @@ def get_snapshot(snapshot_id: PathId, caller: CallerDep, session: SessionDep) ->
 
 
 @router.get(
-    "/snapshots/{snapshot_id}/image", response_class=Response, responses={200: {"content": {"image/png": {}}}}
+    "/snapshots/{snapshot_id}/image",
+    response_class=Response,
+    responses={200: {"content": {"image/png": {}}}, **errors(206, 304, 410, 416)},
 )
 def snapshot_image(
     snapshot_id: PathId, request: Request, caller: CallerDep, session: SessionDep, blobs: BlobsDep
