@@ -1,7 +1,7 @@
 """Bench scripts import their helpers as siblings (`python bench/x.py` puts bench/ first on sys.path); the
-tests import them the same way."""
+tests import them the same way. Appended, so that no bench script's name shadows another module."""
 
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+sys.path.append(str(Path(__file__).resolve().parents[2] / "bench"))

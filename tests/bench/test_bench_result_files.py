@@ -58,7 +58,12 @@ def test_a_path_outside_both_keeps_only_its_name_and_other_text_is_left_alone():
 
 def test_writing_a_result_makes_its_paths_relative(tmp_path):
     out = tmp_path / "result.json"
-    write_result(out, {"var": str(REPO_ROOT / "worker" / "base_models" / "kuka" / "var.pt"), "rows": [1.5]})
-    assert json.loads(out.read_text()) == {"var": "worker/base_models/kuka/var.pt", "rows": [1.5]}
+    var = str(REPO_ROOT / "worker" / "base_models" / "kuka" / "var.pt")
+    write_result(out, {"var": var, "rows": [1.5], "by_env_groups": {2: {"steps_per_s": 30.0}}})
+    assert json.loads(out.read_text()) == {
+        "var": "worker/base_models/kuka/var.pt",
+        "rows": [1.5],
+        "by_env_groups": {"2": {"steps_per_s": 30.0}},
+    }
     assert not [name for name in os.listdir(tmp_path) if name.endswith(".tmp")]
     assert Path(out).read_text().endswith("\n")
