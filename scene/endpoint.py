@@ -24,7 +24,7 @@ def announce(url: str, household_id: int, secret: str) -> None:
         "headers": {SECRET_HEADER: secret},
         "pid": os.getpid(),
     }
-    temporary = endpoint_file().with_suffix(".tmp")
+    temporary = endpoint_file().with_suffix(f".{os.getpid()}.tmp")  # two scenes never share one
     temporary.unlink(missing_ok=True)  # a leftover could have been created with wider permissions
     descriptor = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, PRIVATE_FILE)
     with os.fdopen(descriptor, "w") as file:
