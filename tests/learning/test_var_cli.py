@@ -78,3 +78,29 @@ def test_bad_input_gets_a_clear_message_and_exit_code_2(small_wordset, tmp_path)
     assert result.exit_code == 2 and "--speed-range must be MIN,MAX" in output
     result, output = invoke("eval", str(tmp_path / "missing.pt"), "cli-kuka", "--sounds", "wordset")
     assert result.exit_code == 2 and "No VAR checkpoint" in output
+
+
+def test_a_speech_embedding_var_trains_evaluates_and_plots_from_the_command_line(
+    small_wordset, tmp_path
+) -> None:
+    result, output = invoke(
+        "collect", "kuka", "--triplets", "300", "--name", "cli-kuka", "--image-size", "32", "--workers", "1"
+    )
+    assert result.exit_code == 0, output
+    run = tmp_path / "embedding"
+    result, output = invoke(
+        "train", "cli-kuka", "--front-end", "speech-embedding", "--run-dir", str(run), "--max-steps", "4",
+        "--batch-size", "32", "--threads", "1",
+    )  # fmt: skip
+    assert result.exit_code == 0, output
+    result, output = invoke(
+        "eval", str(run / "final.pt"), "cli-kuka", "--output", str(tmp_path / "eval.json")
+    )
+    assert result.exit_code == 0, output
+    assert "unheard-real-voices" in json.loads((tmp_path / "eval.json").read_text())["tiers"]
+    result, output = invoke(
+        "plot", str(run / "final.pt"), "cli-kuka", "--output", str(tmp_path / "sphere.png")
+    )
+    assert result.exit_code == 0, output
+    result, output = invoke("train", "cli-kuka", "--front-end", "wav2vec", "--run-dir", str(tmp_path / "bad"))
+    assert result.exit_code == 2 and "Unknown sound front end 'wav2vec'" in output
