@@ -7,6 +7,7 @@ from backend.api.responses import document_errors
 from backend.api.routes import auth, clips, health, labels, members, models, robots, runs, snapshots
 from backend.blobs import BlobNotFound
 from backend.errors import ApiError
+from backend.headers import SecurityHeaders
 from backend.pages import install_pages
 
 API_PREFIX = "/api/v1"
@@ -26,6 +27,7 @@ def create_app() -> FastAPI:
     app.include_router(health.router, include_in_schema=False)  # plain /health for process supervisors
     document_errors(app)
     install_pages(app)  # the pages (frontend/) and the signed-in proxy to the 3D scene
+    app.add_middleware(SecurityHeaders)
 
     @app.exception_handler(ApiError)
     async def api_error(_request: Request, exc: ApiError) -> JSONResponse:

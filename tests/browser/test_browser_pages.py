@@ -1,5 +1,7 @@
 """The pages in a real Chromium: sign in, record with a fake microphone, label by keyboard, household, admin
-and progress (live through Server-Sent Events), accessibility basics. Screenshots go to tests/artifacts/."""
+and progress (live through Server-Sent Events), accessibility basics. Screenshots go to tests/artifacts/.
+
+The pages' Content-Security-Policy refuses strings evaluated as code, so wait_for_function gets functions."""
 
 import re
 from pathlib import Path
@@ -56,7 +58,9 @@ def test_recording_with_the_microphone_keeps_a_clip_that_plays(page, stack: Stac
     page.keyboard.down("Space")
     page.get_by_text("Recording…", exact=True).wait_for()
     # the meter follows the voice while the button is held
-    page.wait_for_function("Number(document.querySelector('[role=meter]').getAttribute('aria-valuenow')) > 5")
+    page.wait_for_function(
+        "() => Number(document.querySelector('[role=meter]').getAttribute('aria-valuenow')) > 5"
+    )
     keep_holding(page, seconds=1.6)
     page.keyboard.up("Space")
     page.get_by_text(re.compile(r"Recorded \d\.\d s")).wait_for()
@@ -102,7 +106,8 @@ def _wait_for(page, held: list, what: str) -> None:
 
 def keep_holding(page, seconds: float) -> None:
     """A person keeps the key down this long: here time is the input, not a wait for the page."""
-    page.wait_for_function(f"performance.now() >= {page.evaluate('performance.now()') + 1000 * seconds}")
+    until = page.evaluate("performance.now()") + 1000 * seconds
+    page.wait_for_function(f"() => performance.now() >= {until}")
 
 
 def _main_is_inert(page) -> bool:
@@ -203,17 +208,17 @@ def test_labelling_ten_pairs_by_keyboard_and_undoing_one_leaves_nine_labels(
     camera.wait_for()
     wait_until(lambda: camera.evaluate("img => img.complete && img.naturalWidth > 0"), 10, "the camera image")
     try:
-        page.wait_for_function("document.getElementById('clip').currentTime > 0", timeout=10_000)
+        page.wait_for_function("() => document.getElementById('clip').currentTime > 0", timeout=10_000)
     except PlaywrightTimeout:
         raise AssertionError("the command did not play by itself") from None
     counter = page.locator("#session-count")
     for index in range(10):
         shown = page.evaluate("document.body.dataset.pair")
         page.keyboard.press("y" if index % 2 == 0 else "n")
-        page.wait_for_function(f"document.getElementById('session-count').textContent === '{index + 1}'")
-        page.wait_for_function(f"document.body.dataset.pair !== '{shown}'")  # auto-advance, no dialog
+        page.wait_for_function(f"() => document.getElementById('session-count').textContent == {index + 1}")
+        page.wait_for_function(f"() => document.body.dataset.pair !== '{shown}'")  # auto-advance, no dialog
     page.keyboard.press("z")
-    page.wait_for_function("document.getElementById('session-count').textContent === '9'")
+    page.wait_for_function("() => document.getElementById('session-count').textContent === '9'")
     assert counter.inner_text() == "9"
     assert stack.count("labels") == labels_before + 9
     page.keyboard.press("s")  # skip moves on without answering
@@ -435,3 +440,17 @@ CONTRAST_CHECK = """() => {
   }
   return out;
 }"""
+
+
+def test_the_policy_refuses_a_script_injected_into_a_page(page, stack: Stack, console: ConsoleWatch) -> None:
+    console.expect("Content Security Policy")
+    open_page(page, f"{stack.url}/record")
+    ran = page.evaluate(
+        """() => {
+            const injected = document.createElement("script");
+            injected.textContent = "window.injectedRan = true";
+            document.head.append(injected);
+            return window.injectedRan === true;
+        }"""
+    )
+    assert ran is False
