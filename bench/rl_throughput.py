@@ -9,9 +9,11 @@ bench/results/rl_throughput.json.
 do not change the cost), reported as env steps/s over whole updates, with the time shares (waiting for the
 workers, VAR embedding, acting, PPO update). The JSON holds the reference implementation's speed (REFERENCE:
 its value, unit and source) beside the ratio to it, and the machine and the load average before and after.
+Earlier runs stay in the file under earlier_runs, each with its own load: compare runs only at a similar load.
 """
 
 import argparse
+import json
 import tempfile
 import time
 from pathlib import Path
@@ -96,6 +98,14 @@ def trainer_speed(
     }
 
 
+def earlier_runs(path: Path) -> list[dict]:
+    """The runs the file held before this one, oldest first."""
+    if not path.exists():
+        return []
+    previous = json.loads(path.read_text())
+    return [*previous.pop("earlier_runs", []), previous]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -154,7 +164,8 @@ def main() -> None:
     table.add_row(f"best × reference ({reference})", f"{result['speedup_over_reference']:.0f}")
     Console().print(table)
     print(describe(measured))
-    write_result(RESULTS / "rl_throughput.json", result)
+    output = RESULTS / "rl_throughput.json"
+    write_result(output, {**result, "earlier_runs": earlier_runs(output)})
 
 
 if __name__ == "__main__":
