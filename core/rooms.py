@@ -1,14 +1,19 @@
 """A robot's room: how its simulated world looks (colours, textures, camera, light), and the rule that reads
 it from the robot's settings.
 
-`settings["domain"]` is absent (the training room), the name of a preset ("unseen_room"), or DomainShift
-fields. The API checks it when a robot is created or changed; the worker renders captures and evaluations in
-it. `DomainShift` lives here, in plain Python, so that the API can check a room without importing the
-simulator; `sim.domain` re-exports it for the worlds.
+`settings["domain"]` is absent (the training room), the name of a preset ("unseen_room", "lamplit_room"),
+or DomainShift fields. The API checks it when a robot is created or changed; the worker renders captures and
+evaluations in it. `DomainShift` lives here, in plain Python, so that the API can check a room without
+importing the simulator; `sim.domain` re-exports it for the worlds.
+
+`RoomRanges` are the rooms base models are trained over (a world given them draws a new room at every
+reset); the held-out presets lie outside them, by a margin in at least one knob (`held_out_knobs`).
 """
 
+import colorsys
 import dataclasses
 import math
+import random
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -49,8 +54,28 @@ class DomainShift:
             light_diffuse=0.45,
         )
 
+    @classmethod
+    def lamplit_room(cls) -> "DomainShift":
+        """A second held-out room, unlike the first: teal checkered objects on a mottled purple floor, dim
+        light from a low lamp at the side, a camera placed further off."""
+        return cls(
+            object_rgb=(0.1, 0.65, 0.6),
+            floor_rgb=(0.45, 0.3, 0.5),
+            object_texture="checker",
+            floor_texture="noise",
+            camera_jitter_m=0.06,
+            camera_jitter_deg=5.0,
+            light_direction=(0.9, -0.2, 0.25),
+            light_ambient=0.3,
+            light_diffuse=0.65,
+        )
 
-ROOM_PRESETS: dict[str, Callable[[], DomainShift]] = {"unseen_room": DomainShift.unseen_room}
+
+ROOM_PRESETS: dict[str, Callable[[], DomainShift]] = {
+    "unseen_room": DomainShift.unseen_room,
+    "lamplit_room": DomainShift.lamplit_room,
+}
+HELD_OUT_ROOMS = ("unseen_room", "lamplit_room")
 
 _FIELDS = [field.name for field in dataclasses.fields(DomainShift)]
 
@@ -95,3 +120,186 @@ def _checked(name: str, value: Any) -> Any:
 
 def _is_number(value: Any) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+# --- training ranges: the rooms a base model is trained over ----------------------------------------------
+
+_Interval = tuple[float, float]
+
+
+@dataclass(frozen=True)
+class ColourRange:
+    """Colours as HSV: a hue in one of `hues_deg` (intervals, degrees; -30..15 wraps through red), and a
+    saturation and value in their intervals."""
+
+    hues_deg: tuple[_Interval, ...]
+    saturation: _Interval
+    value: _Interval
+
+
+@dataclass(frozen=True)
+class RoomRanges:
+    """The rooms a base model is trained over: every episode draws one room from these ranges (plain data).
+
+    They span what a home camera placement plausibly sees: tables and floors of wood, stone, beige, grey
+    and green; objects of most colours; plain or mottled surfaces; light from any side and from high up; a
+    camera a few centimetres and degrees off. They leave out on purpose what the held-out rooms show: orange,
+    cyan and magenta objects, blue and purple floors, checkered surfaces, dim or side light, a camera further
+    off (`held_out_knobs` measures by how much).
+
+    `own_look_share` is the chance that a knob group (object colour, floor colour, light) keeps the world's
+    own look, so the training room itself stays in the mix. The camera's jitter is per episode within the
+    given amplitudes. The worlds' own colours lie inside the ranges (tests/sim say so).
+    """
+
+    object_colour: ColourRange = ColourRange(
+        ((-30.0, 15.0), (48.0, 160.0), (200.0, 290.0)), (0.5, 1.0), (0.45, 1.0)
+    )
+    floor_colour: ColourRange = ColourRange(((0.0, 70.0), (80.0, 170.0)), (0.0, 0.5), (0.35, 1.0))
+    object_textures: tuple[str | None, ...] = (None, "noise")
+    floor_textures: tuple[str | None, ...] = (None, "noise")
+    camera_jitter_m: float = 0.04
+    camera_jitter_deg: float = 3.0
+    light_azimuth_deg: _Interval = (-180.0, 180.0)
+    light_elevation_deg: _Interval = (35.0, 85.0)
+    light_ambient: _Interval = (0.45, 0.75)
+    light_diffuse: _Interval = (0.2, 0.5)
+    own_look_share: float = 0.2
+
+
+def sample_room(ranges: RoomRanges, rng: random.Random) -> DomainShift:
+    """One room drawn from `ranges` (the same `rng` state draws the same room)."""
+    own = ranges.own_look_share
+    object_rgb = None if rng.random() < own else _sample_colour(ranges.object_colour, rng)
+    floor_rgb = None if rng.random() < own else _sample_colour(ranges.floor_colour, rng)
+    own_light = rng.random() < own
+    azimuth, elevation = rng.uniform(*ranges.light_azimuth_deg), rng.uniform(*ranges.light_elevation_deg)
+    ambient, diffuse = rng.uniform(*ranges.light_ambient), rng.uniform(*ranges.light_diffuse)
+    return DomainShift(
+        object_rgb=object_rgb,
+        floor_rgb=floor_rgb,
+        object_texture=rng.choice(ranges.object_textures),
+        floor_texture=rng.choice(ranges.floor_textures),
+        camera_jitter_m=ranges.camera_jitter_m,
+        camera_jitter_deg=ranges.camera_jitter_deg,
+        light_direction=None if own_light else _direction(azimuth, elevation),
+        light_ambient=None if own_light else ambient,
+        light_diffuse=None if own_light else diffuse,
+    )
+
+
+def _sample_colour(colours: ColourRange, rng: random.Random) -> _Rgb:
+    lengths = [high - low for low, high in colours.hues_deg]
+    low, high = rng.choices(colours.hues_deg, weights=lengths)[0]
+    hue = rng.uniform(low, high) % 360.0
+    red, green, blue = colorsys.hsv_to_rgb(
+        hue / 360.0, rng.uniform(*colours.saturation), rng.uniform(*colours.value)
+    )
+    return (red, green, blue)
+
+
+def _direction(azimuth_deg: float, elevation_deg: float) -> tuple[float, float, float]:
+    azimuth, elevation = math.radians(azimuth_deg), math.radians(elevation_deg)
+    return (
+        math.cos(elevation) * math.cos(azimuth),
+        math.cos(elevation) * math.sin(azimuth),
+        math.sin(elevation),
+    )
+
+
+# --- held out: how far a room lies outside the training ranges ----------------------------------------------
+
+# A held-out room differs from every room the ranges can produce in at least one knob by at least this much.
+HELD_OUT_MARGINS: dict[str, float] = {
+    "object_hue_deg": 10.0, "object_saturation": 0.1, "object_value": 0.1,
+    "floor_hue_deg": 10.0, "floor_saturation": 0.1, "floor_value": 0.1,
+    "object_texture": 1.0, "floor_texture": 1.0,  # a texture the ranges never draw
+    "camera_jitter_m": 0.01, "camera_jitter_deg": 1.0,
+    "light_azimuth_deg": 10.0, "light_elevation_deg": 10.0, "light_ambient": 0.05, "light_diffuse": 0.05,
+}  # fmt: skip
+HUE_VISIBLE = 0.25  # below this saturation or value a colour's hue is not seen, so it is not compared
+
+
+def outside_by(ranges: RoomRanges, room: DomainShift) -> dict[str, float]:
+    """For each knob, how far `room` lies outside `ranges` (0 inside, or where the room keeps the world's
+    own look, which the ranges hold)."""
+    distances = {
+        **_colour_outside("object", ranges.object_colour, room.object_rgb),
+        **_colour_outside("floor", ranges.floor_colour, room.floor_rgb),
+        "object_texture": float(room.object_texture not in ranges.object_textures),
+        "floor_texture": float(room.floor_texture not in ranges.floor_textures),
+        "camera_jitter_m": max(0.0, room.camera_jitter_m - ranges.camera_jitter_m),
+        "camera_jitter_deg": max(0.0, room.camera_jitter_deg - ranges.camera_jitter_deg),
+        "light_ambient": _interval_outside(room.light_ambient, ranges.light_ambient),
+        "light_diffuse": _interval_outside(room.light_diffuse, ranges.light_diffuse),
+    }
+    azimuth, elevation = _azimuth_elevation(room.light_direction)
+    distances["light_azimuth_deg"] = _hue_outside(azimuth, [ranges.light_azimuth_deg])
+    distances["light_elevation_deg"] = _interval_outside(elevation, ranges.light_elevation_deg)
+    return distances
+
+
+def held_out_knobs(ranges: RoomRanges, room: DomainShift) -> dict[str, float]:
+    """The knobs in which `room` lies outside `ranges` by at least their margin, with the distance."""
+    return {knob: d for knob, d in outside_by(ranges, room).items() if d >= HELD_OUT_MARGINS[knob]}
+
+
+def _colour_outside(name: str, colours: ColourRange, rgb: _Rgb | None) -> dict[str, float]:
+    if rgb is None:
+        return {f"{name}_hue_deg": 0.0, f"{name}_saturation": 0.0, f"{name}_value": 0.0}
+    hue, saturation, value = colorsys.rgb_to_hsv(*rgb)
+    hue_seen = saturation >= HUE_VISIBLE and value >= HUE_VISIBLE
+    return {
+        f"{name}_hue_deg": _hue_outside(hue * 360.0, colours.hues_deg) if hue_seen else 0.0,
+        f"{name}_saturation": _interval_outside(saturation, colours.saturation),
+        f"{name}_value": _interval_outside(value, colours.value),
+    }
+
+
+def _interval_outside(value: float | None, interval: _Interval) -> float:
+    if value is None:
+        return 0.0
+    low, high = interval
+    return max(0.0, low - value, value - high)
+
+
+def _hue_outside(angle_deg: float | None, intervals: tuple[_Interval, ...] | list[_Interval]) -> float:
+    """Degrees round the circle from `angle_deg` to the nearest interval (0 inside one)."""
+    if angle_deg is None:
+        return 0.0
+    return min(_arc_outside(angle_deg, low, high) for low, high in intervals)
+
+
+def _arc_outside(angle_deg: float, low: float, high: float) -> float:
+    if high - low >= 360.0:
+        return 0.0
+    offset = (angle_deg - low) % 360.0
+    if offset <= high - low:
+        return 0.0
+    return min(offset - (high - low), 360.0 - offset)
+
+
+def _azimuth_elevation(direction: tuple[float, float, float] | None) -> tuple[float | None, float | None]:
+    if direction is None:
+        return None, None
+    x, y, z = direction
+    return math.degrees(math.atan2(y, x)), math.degrees(math.atan2(z, math.hypot(x, y)))
+
+
+# --- rooms by name, for commands and configs ----------------------------------------------------------------
+
+TRAINING_ROOM = "training"
+RANDOMISED_ROOMS = "randomised"
+ROOM_NAMES = (TRAINING_ROOM, RANDOMISED_ROOMS, *ROOM_PRESETS)
+
+
+def world_room(name: str) -> "DomainShift | RoomRanges | None":
+    """What a world is given for a room name: None for "training" (the world's own look), the training
+    `RoomRanges` for "randomised" (a new room every reset), or a preset's room."""
+    if name == TRAINING_ROOM:
+        return None
+    if name == RANDOMISED_ROOMS:
+        return RoomRanges()
+    if name in ROOM_PRESETS:
+        return ROOM_PRESETS[name]()
+    raise ValueError(f"unknown room {name!r}: choose one of {', '.join(ROOM_NAMES)}")

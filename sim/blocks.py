@@ -13,6 +13,7 @@ Success rules (`success_rule`):
 - "hold": the ray hit the target block for at least `hold_steps` consecutive steps (sticky once reached).
 """
 
+import random
 from typing import Any, ClassVar
 
 import gymnasium as gym
@@ -24,9 +25,11 @@ from pybullet_utils.bullet_client import BulletClient
 from sim.arm import STEP_M, WORKSPACE_X_M, WORKSPACE_Y_M
 from sim.bullet_arm import BulletArm, configure_physics
 from sim.camera import Lighting, TableCamera
-from sim.domain import DomainShift
+from sim.domain import DomainShift, RoomRanges, room_and_ranges, sample_room
 from sim.mirror import BodyMirror, MirroredWorld
 from sim.textures import texture_file
+
+TABLE_TEXTURE = pybullet_data.getDataPath() + "/table/table.png"  # table.urdf's own look
 
 NUM_INTENTS = 4
 INTENT_NAMES = [f"slot {k}" for k in range(NUM_INTENTS)]
@@ -56,18 +59,18 @@ class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
         self,
         image_size: int = 96,
         success_rule: str = "final",
-        domain: DomainShift | None = None,
+        domain: DomainShift | RoomRanges | None = None,
         max_steps: int | None = None,
         hold_steps: int = DEFAULT_HOLD_STEPS,
         render_images: bool = True,
         visual_detail: str = "fast",
         render_mode: str | None = None,
     ) -> None:
-        _check_options(success_rule, max_steps, hold_steps, domain, render_mode)
+        _check_options(success_rule, max_steps, hold_steps, render_mode)
         self.success_rule = success_rule
         self.max_steps = EPISODE_STEPS if max_steps is None else int(max_steps)
         self.hold_steps = int(hold_steps)
-        self.domain = domain or DomainShift()
+        self.domain, self.room_ranges = room_and_ranges(domain)  # ranges: a new room every reset
         self.render_images = render_images  # False: observations carry a black image (fast ground-truth runs)
         self.render_mode = render_mode
 
@@ -80,6 +83,7 @@ class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
         self.camera = TableCamera(image_size, lighting=_lighting(self.domain))
         self.arm = self.arm_class(self.client, camera=self._render, visual_detail=visual_detail)
         self.mirror = BodyMirror(self.client, self.arm.body)
+        self._textures: dict[str, int] = {}
         self._apply_appearance()
 
         self.observation_space = gym.spaces.Dict(
@@ -113,9 +117,11 @@ class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
             [WORKSPACE_X_M[1] - margin, WORKSPACE_Y_M[1] - margin],
         )
         self.arm.reset_to(*start)
-        if (
-            self.domain.camera_jitter_m > 0 or self.domain.camera_jitter_deg > 0
-        ):  # drawn last: same seed, same task
+        if self.room_ranges is not None:  # drawn after the task: same seed, same task as in a fixed room
+            self._enter_room(
+                sample_room(self.room_ranges, random.Random(int(self.np_random.integers(2**63))))
+            )
+        if self.domain.camera_jitter_m > 0 or self.domain.camera_jitter_deg > 0:
             self.camera.jitter(self.np_random, self.domain.camera_jitter_m, self.domain.camera_jitter_deg)
         self.steps = self.hold_streak = self.best_streak = 0
         heard = self.heard()
@@ -209,16 +215,29 @@ class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
             "target_xy": self.arm.target_xy,
         }
 
+    def _enter_room(self, room: DomainShift) -> None:
+        self.domain = room
+        self.camera.lighting = _lighting(room)
+        self._apply_appearance()
+
     def _apply_appearance(self) -> None:
+        """Colour and texture the blocks and the table as the room says (anything else: the world's own)."""
         shift = self.domain
         block_rgba = [*shift.object_rgb, 1.0] if shift.object_rgb is not None else list(BLOCK_RGBA)
-        block_texture = _texture_id(self.client, shift.object_texture)
+        block_texture = self._texture(shift.object_texture) if shift.object_texture else -1  # -1: plain
         for block in self.blocks:
-            self.client.changeVisualShape(block, -1, rgbaColor=block_rgba, **block_texture)
-        table_texture = _texture_id(self.client, shift.floor_texture, squares=12)
-        if shift.floor_rgb is not None or table_texture:
-            rgba = [*shift.floor_rgb, 1.0] if shift.floor_rgb is not None else [1.0, 1.0, 1.0, 1.0]
-            self.client.changeVisualShape(self.table, -1, rgbaColor=rgba, **table_texture)
+            self.client.changeVisualShape(block, -1, rgbaColor=block_rgba, textureUniqueId=block_texture)
+        table_rgba = [*shift.floor_rgb, 1.0] if shift.floor_rgb is not None else [1.0, 1.0, 1.0, 1.0]
+        table_texture = self._texture(shift.floor_texture or "table", squares=12)
+        self.client.changeVisualShape(self.table, -1, rgbaColor=table_rgba, textureUniqueId=table_texture)
+
+    def _texture(self, kind: str, squares: int = 2) -> int:
+        """A texture's id, loaded once per world ("table": the table's own)."""
+        key = f"{kind}_{squares}"
+        if key not in self._textures:
+            path = TABLE_TEXTURE if kind == "table" else str(texture_file(kind, squares))
+            self._textures[key] = self.client.loadTexture(path)
+        return self._textures[key]
 
 
 def _make_blocks(client: BulletClient) -> list[int]:
@@ -234,18 +253,12 @@ def _make_blocks(client: BulletClient) -> list[int]:
     ]
 
 
-def _texture_id(client: BulletClient, kind: str | None, squares: int = 2) -> dict:
-    if kind is None:
-        return {}
-    return {"textureUniqueId": client.loadTexture(str(texture_file(kind, squares)))}
-
-
 def _lighting(shift: DomainShift) -> Lighting:
     return Lighting(shift.light_direction, shift.light_ambient, shift.light_diffuse)
 
 
 def _check_options(
-    success_rule: str, max_steps: int | None, hold_steps: int, domain: object, render_mode: str | None
+    success_rule: str, max_steps: int | None, hold_steps: int, render_mode: str | None
 ) -> None:
     if success_rule not in SUCCESS_RULES:
         raise ValueError(f"success_rule must be one of {SUCCESS_RULES}, got {success_rule!r}")
@@ -256,7 +269,5 @@ def _check_options(
     limit = EPISODE_STEPS if max_steps is None else max_steps
     if success_rule == "hold" and not 1 <= hold_steps <= limit:
         raise ValueError(f"hold_steps must be between 1 and the episode length {limit}, got {hold_steps}")
-    if domain is not None and not isinstance(domain, DomainShift):
-        raise TypeError(f"domain must be a sim.domain.DomainShift or None, got {type(domain).__name__}")
     if render_mode not in (None, "rgb_array"):
         raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")

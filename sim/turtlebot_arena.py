@@ -18,6 +18,7 @@ the step the episode succeeds (for "final": the last step), else 0.
 """
 
 import math
+import random
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar
@@ -28,7 +29,7 @@ import pybullet as p
 from gymnasium import spaces
 from pybullet_utils.bullet_client import BulletClient
 
-from sim.domain import DomainShift
+from sim.domain import DomainShift, RoomRanges, room_and_ranges, sample_room
 from sim.mirror import BodyMirror, MirroredWorld
 from sim.textures import texture_file
 
@@ -164,7 +165,7 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
         self,
         image_size: int = 96,
         success_rule: str = "hold",
-        domain: DomainShift | None = None,
+        domain: DomainShift | RoomRanges | None = None,
         max_steps: int | None = None,
         render_mode: str | None = None,
     ) -> None:
@@ -178,7 +179,7 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.image_size = image_size
         self.success_rule = success_rule
-        self.domain = domain or DomainShift()
+        self.domain, self.room_ranges = room_and_ranges(domain)  # ranges: a new room every reset
         self.max_steps = max_steps or DEFAULT_MAX_STEPS
         self.render_mode = render_mode
 
@@ -191,6 +192,7 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
         )
 
         self._client = BulletClient(p.DIRECT)
+        self._textures: dict[str, int] = {}
         self._robot_id = self._load_robot()
         self._floor_id, self._wall_ids = self._build_room()
         self._object_ids = self._create_objects()
@@ -228,8 +230,9 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
         floor_rgb = self.domain.floor_rgb or DEFAULT_FLOOR_RGB
         floor = self._box([ARENA_HALF_M + WALL_THICKNESS_M] * 2 + [0.005], [0, 0, -0.005], floor_rgb)
         if self.domain.floor_texture:
-            texture = self._client.loadTexture(str(texture_file(self.domain.floor_texture, squares=16)))
-            self._client.changeVisualShape(floor, -1, textureUniqueId=texture)
+            self._client.changeVisualShape(
+                floor, -1, textureUniqueId=self._texture(self.domain.floor_texture, 16)
+            )
         half_length = ARENA_HALF_M + WALL_THICKNESS_M
         walls = []
         for axis in (0, 1):
@@ -266,13 +269,11 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
 
     def _create_objects(self) -> list[int]:
         """One body per object, built once; each episode only moves them."""
-        texture = None
-        if self.domain.object_texture:
-            texture = self._client.loadTexture(str(texture_file(self.domain.object_texture, squares=4)))
+        texture = self._texture(self.domain.object_texture, squares=4)
         bodies = []
         for spec in OBJECTS:
             body = self._client.createMultiBody(0, -1, self._object_visual(spec), basePosition=[0, 0, -1])
-            if texture is not None:
+            if texture != -1:
                 self._client.changeVisualShape(body, -1, textureUniqueId=texture)
             bodies.append(body)
         return bodies
@@ -284,6 +285,28 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
             orientation = self._client.getQuaternionFromEuler([0, 0, yaw])
             self._client.resetBasePositionAndOrientation(body, position, orientation)
             self._objects.append(PlacedObject(spec, np.asarray(xy, dtype=np.float64), yaw, body))
+
+    def _enter_room(self, room: DomainShift) -> None:
+        """Recolour and retexture the floor and the objects for this episode's room (light: `_observe`)."""
+        self.domain = room
+        floor_texture = self._texture(room.floor_texture, squares=16)
+        floor_rgba = [*(room.floor_rgb or DEFAULT_FLOOR_RGB), 1.0]
+        self._client.changeVisualShape(
+            self._floor_id, -1, rgbaColor=floor_rgba, textureUniqueId=floor_texture
+        )
+        object_texture = self._texture(room.object_texture, squares=4)
+        for spec, body in zip(OBJECTS, self._object_ids, strict=True):
+            rgba = [*(room.object_rgb or spec.rgb), 1.0]
+            self._client.changeVisualShape(body, -1, rgbaColor=rgba, textureUniqueId=object_texture)
+
+    def _texture(self, kind: str | None, squares: int) -> int:
+        """A texture's id, loaded once per world; -1 (plain) for None."""
+        if kind is None:
+            return -1
+        key = f"{kind}_{squares}"
+        if key not in self._textures:
+            self._textures[key] = self._client.loadTexture(str(texture_file(kind, squares=squares)))
+        return self._textures[key]
 
     # ------------------------------------------------------------------ Gymnasium API
 
@@ -301,6 +324,8 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
             raise ValueError(f"options['intent'] must be an int in 0..{self.num_intents - 1}, got {intent!r}")
         self._intent = int(intent)
         self._place_objects(layout)
+        if self.room_ranges is not None:  # drawn after the task: same seed, same task as in a fixed room
+            self._enter_room(sample_room(self.room_ranges, random.Random(int(jitter_rng.integers(2**63)))))
         self._sample_camera_jitter(jitter_rng)
         self._pose = np.asarray(start, dtype=np.float64)
         self._steps = 0

@@ -1,9 +1,25 @@
 """A robot's room (core.rooms): `settings["domain"]` is absent (the training room), a preset's name, or
-DomainShift fields; anything else is refused with a message that says what is wrong."""
+DomainShift fields; anything else is refused with a message that says what is wrong. Base models train over
+rooms drawn from `RoomRanges`; the held-out presets lie outside every room those ranges can draw."""
+
+import colorsys
+import math
+import random
 
 import pytest
 
-from core.rooms import ROOM_PRESETS, DomainShift, room_of
+from core.rooms import (
+    HELD_OUT_MARGINS,
+    HELD_OUT_ROOMS,
+    ROOM_PRESETS,
+    DomainShift,
+    RoomRanges,
+    held_out_knobs,
+    outside_by,
+    room_of,
+    sample_room,
+    world_room,
+)
 
 
 def test_a_robot_without_a_room_is_in_the_training_room() -> None:
@@ -15,7 +31,8 @@ def test_a_robot_without_a_room_is_in_the_training_room() -> None:
 
 def test_a_preset_names_a_ready_made_room() -> None:
     assert room_of({"domain": "unseen_room"}) == DomainShift.unseen_room()
-    assert set(ROOM_PRESETS) == {"unseen_room"}
+    assert room_of({"domain": "lamplit_room"}) == DomainShift.lamplit_room()
+    assert set(ROOM_PRESETS) == {"unseen_room", "lamplit_room"} == set(HELD_OUT_ROOMS)
 
 
 def test_fields_build_the_room_with_json_lists_as_tuples() -> None:
@@ -35,7 +52,7 @@ def test_the_simulator_renders_the_same_room_type() -> None:
 @pytest.mark.parametrize(
     ("domain", "message"),
     [
-        ("kitchen", "unknown room 'kitchen' in settings.domain; presets: unseen_room"),
+        ("kitchen", "unknown room 'kitchen' in settings.domain; presets: unseen_room, lamplit_room"),
         (["unseen_room"], "settings.domain is a preset name or an object of DomainShift fields"),
         (
             {"wall_rgb": [0, 0, 0]},
@@ -57,3 +74,80 @@ def test_a_room_that_cannot_be_built_is_refused_saying_why(domain: object, messa
     with pytest.raises(ValueError) as refusal:
         room_of({"domain": domain})
     assert str(refusal.value).startswith(message)
+
+
+def test_the_training_ranges_draw_a_different_room_each_time_and_the_same_room_from_the_same_seed() -> None:
+    ranges = RoomRanges()
+    rooms = [sample_room(ranges, random.Random(seed)) for seed in range(50)]
+    assert rooms[7] == sample_room(ranges, random.Random(7))
+    assert len({room.object_rgb for room in rooms}) > 30, "object colours vary"
+    assert len({room.floor_rgb for room in rooms}) > 30, "floor colours vary"
+    assert {room.floor_texture for room in rooms} == {None, "noise"}
+    assert {room.object_texture for room in rooms} == {None, "noise"}
+    assert None in {room.light_direction for room in rooms}, "some rooms keep the world's own light"
+    assert all(outside_by(ranges, room) == dict.fromkeys(HELD_OUT_MARGINS, 0.0) for room in rooms)
+
+
+def test_each_held_out_room_lies_outside_the_training_ranges_by_a_margin() -> None:
+    ranges = RoomRanges()
+    assert set(held_out_knobs(ranges, DomainShift.unseen_room())) == {
+        "object_hue_deg", "floor_hue_deg", "floor_texture"
+    }  # fmt: skip
+    assert set(held_out_knobs(ranges, DomainShift.lamplit_room())) >= {
+        "object_hue_deg", "floor_hue_deg", "object_texture", "camera_jitter_m", "camera_jitter_deg",
+        "light_ambient", "light_diffuse", "light_elevation_deg",
+    }  # fmt: skip
+    assert held_out_knobs(ranges, DomainShift()) == {}, "the training room is inside"
+
+
+@pytest.mark.parametrize("preset", HELD_OUT_ROOMS)
+def test_no_room_the_ranges_draw_comes_within_the_margin_of_a_held_out_room_in_every_knob(
+    preset: str,
+) -> None:
+    """The same claim checked against the sampler itself: every drawn room differs from the preset in at least
+    one knob by at least that knob's margin."""
+    held_out = ROOM_PRESETS[preset]()
+    rng = random.Random(0)
+    for _ in range(3000):
+        drawn = sample_room(RoomRanges(own_look_share=0.0), rng)
+        differences = _differences(drawn, held_out)
+        assert any(differences[knob] >= HELD_OUT_MARGINS[knob] for knob in differences), (drawn, differences)
+
+
+def test_rooms_by_name_are_the_training_room_the_training_ranges_or_a_preset() -> None:
+    assert world_room("training") is None
+    assert world_room("randomised") == RoomRanges()
+    assert world_room("lamplit_room") == DomainShift.lamplit_room()
+    with pytest.raises(
+        ValueError, match="unknown room 'attic': choose one of training, randomised, unseen_room"
+    ):
+        world_room("attic")
+
+
+def _differences(drawn: DomainShift, held_out: DomainShift) -> dict[str, float]:
+    """Knob by knob, how far `held_out` is from `drawn` (the camera: how much further it can move)."""
+    differences = {
+        "object_texture": float(drawn.object_texture != held_out.object_texture),
+        "floor_texture": float(drawn.floor_texture != held_out.floor_texture),
+        "camera_jitter_m": held_out.camera_jitter_m - drawn.camera_jitter_m,
+        "camera_jitter_deg": held_out.camera_jitter_deg - drawn.camera_jitter_deg,
+        "light_ambient": abs(held_out.light_ambient - drawn.light_ambient),
+        "light_diffuse": abs(held_out.light_diffuse - drawn.light_diffuse),
+    }
+    for name in ("object", "floor"):
+        (h1, s1, v1), (h2, s2, v2) = (
+            colorsys.rgb_to_hsv(*getattr(room, f"{name}_rgb")) for room in (drawn, held_out)
+        )
+        hue = abs(h1 - h2) * 360.0
+        differences[f"{name}_hue_deg"] = min(hue, 360.0 - hue) if s2 >= 0.25 and v2 >= 0.25 else 0.0
+        differences[f"{name}_saturation"], differences[f"{name}_value"] = abs(s1 - s2), abs(v1 - v2)
+    (a1, e1), (a2, e2) = (_angles(room.light_direction) for room in (drawn, held_out))
+    azimuth = abs(a1 - a2) % 360.0
+    differences["light_azimuth_deg"] = min(azimuth, 360.0 - azimuth)
+    differences["light_elevation_deg"] = abs(e1 - e2)
+    return differences
+
+
+def _angles(direction: tuple[float, float, float]) -> tuple[float, float]:
+    x, y, z = direction
+    return math.degrees(math.atan2(y, x)), math.degrees(math.atan2(z, math.hypot(x, y)))
