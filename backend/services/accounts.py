@@ -14,6 +14,7 @@ from backend import models, throttle
 from backend.errors import Conflict, Forbidden, NotFound
 from backend.schemas import MemberCreate, MemberUpdate, MeUpdate
 from backend.security import (
+    HashingBusy,
     hash_password,
     new_token,
     signed_in_cache,
@@ -63,13 +64,22 @@ async def authenticate(
 ) -> models.User | None:
     """The active member with this username and password, or None; `throttle.Throttled` while the account
     or the address has had too many wrong passwords, `security.HashingBusy` when too many sign-ins wait."""
-    attempt = await run_in_threadpool(throttle.begin, session, settings, username, client.address)
-    user = await run_in_threadpool(_find_user, session, username)
-    right = await verify_password_waiting(password, user.password_hash if user else None)
+    attempt, user = await run_in_threadpool(_count_and_find, session, settings, username, client.address)
+    try:
+        right = await verify_password_waiting(password, user.password_hash if user else None)
+    except HashingBusy:
+        await run_in_threadpool(throttle.forgive, attempt)  # never checked: not a wrong password
+        raise
     if not right or user is None or not user.is_active:
         return None
     await run_in_threadpool(throttle.forgive, attempt)
     return user
+
+
+def _count_and_find(
+    session: Session, settings: Settings, username: str, address: str
+) -> tuple[throttle.Attempt, models.User | None]:
+    return throttle.begin(session, settings, username, address), _find_user(session, username)
 
 
 def open_session(
