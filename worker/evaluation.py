@@ -8,6 +8,7 @@ gate that decides whether the candidate becomes active.
 
 import math
 from dataclasses import dataclass, field
+from enum import StrEnum
 from pathlib import Path
 from typing import Any
 
@@ -16,8 +17,6 @@ import numpy as np
 from core.rooms import DomainShift
 from worker.household import HouseholdData
 from worker.var_stage import triplet_accuracy
-
-NUM_INTENTS = 4
 
 
 @dataclass
@@ -33,24 +32,19 @@ class ModelScore:
         return {k: v for k, v in self.__dict__.items()}
 
 
-@dataclass
-class GateDecision:
-    promote: bool
-    reasons: list[str] = field(default_factory=list)
-
-
 def sim_goals(data: HouseholdData):  # type: ignore[no-untyped-def]
-    """Goal clips with the intent each one means, or a reason why simulated success cannot be measured."""
+    """Goal clips with the intent each one means (the simulator's account of the views answered *is*), or a
+    reason why simulated success cannot be measured: it is, on the targets the commands name, as soon as
+    every recorded command has at least one *is* answer."""
     from learning.rl.rewards import ClipBank
 
     known = data.clip_intent >= 0
-    missing = sorted(set(range(NUM_INTENTS)) - set(data.clip_intent[known].tolist()))
-    if missing:
+    if not known.all():
         return None, (
-            f"simulated success not measured: no recorded command is known to mean intent(s) {missing} "
-            "(label more images of them with 'is')"
+            f"simulated success not measured: {int((~known).sum())} of {len(known)} recordings belong to "
+            "commands with no 'is' answer yet (answer 'is' for each command at least once)"
         )
-    return ClipBank(data.features[known], data.clip_intent[known]), None
+    return ClipBank(data.features, data.clip_intent), None
 
 
 def score_model(
@@ -89,11 +83,12 @@ def score_model(
             split="household",
             episodes_per_intent=episodes_per_intent,
             seed=seed,
-            num_envs=min(num_envs, NUM_INTENTS * episodes_per_intent),
+            num_envs=min(num_envs, len(set(data.clip_intent.tolist())) * episodes_per_intent),
             success_rule=config.get("success_rule"),
             max_steps=config.get("max_episode_steps"),
             domain=room,
             progress=False,
+            intents=sorted(set(data.clip_intent.tolist())),
         )
         score.sim_success = float(result.success_rate)
         score.sim_episodes = len(result.episodes)
@@ -101,12 +96,56 @@ def score_model(
     return score
 
 
-def decide(candidate: ModelScore, active: ModelScore | None) -> GateDecision:
-    """Promote only if the candidate is not worse on either measure; "not worse" allows one item's worth
-    (one held-out triplet, one episode) of noise. A measure nobody could take is recorded, not judged."""
+class Verdict(StrEnum):
+    BETTER = "better"
+    NO_CHANGE = "no_change"
+    WORSE = "worse"
+
+
+# The rule every claim follows: a difference between two success rates measured on the same n items counts
+# only beyond Z standard errors of a difference of two proportions, sqrt(2 p(1 - p) / n) at their pooled rate
+# p (about 95 % of chance differences stay inside); and a gain is claimed only from MIN_ITEMS items, the
+# fewest at which a MEANINGFUL_GAIN (two more successes in ten tries) clears that bar at the worst case p = ½.
+Z = 2.0
+MEANINGFUL_GAIN = 0.2
+MIN_ITEMS = math.ceil(2 * Z**2 * 0.25 / MEANINGFUL_GAIN**2)  # 50
+
+
+@dataclass
+class GateDecision:
+    promote: bool
+    reasons: list[str] = field(default_factory=list)
+    verdict: Verdict = Verdict.NO_CHANGE
+    summary: str = ""  # the verdict in the household's words
+    min_items: int = MIN_ITEMS
+
+
+def compare(candidate: float, active: float, items: int) -> Verdict:
+    """Two rates on the same `items` items, by the rule above."""
+    pooled = (candidate + active) / 2
+    noise = Z * math.sqrt(2 * pooled * (1 - pooled) / items)
+    difference = candidate - active
+    if difference > noise + 1e-9 and items >= MIN_ITEMS:
+        return Verdict.BETTER
+    if difference < -noise - 1e-9:
+        return Verdict.WORSE
+    return Verdict.NO_CHANGE
+
+
+def decide(
+    candidate: ModelScore, active: ModelScore | None, command_names: dict[int, str] | None = None
+) -> GateDecision:
+    """Better, no measurable change or worse, on held-out triplet accuracy and simulated success with the
+    household's commands (each by `compare`); worse on either is worse, else better on either is better.
+    Only a better candidate is promoted (or the first version of a robot). `command_names`: the household's
+    word for each intent, for the summary."""
     if active is None:
-        return GateDecision(True, ["no active version to compare with: the candidate becomes active"])
-    reasons, worse, measured = [], False, 0
+        return GateDecision(
+            True, ["no active version to compare with: the candidate becomes active"], Verdict.BETTER,
+            "This is the robot's first version; it is now active.",
+        )  # fmt: skip
+    names = command_names or {}
+    reasons, verdicts = [], []
     for name, cand, act, count, why_not in (
         ("held-out triplet accuracy", candidate.triplet_accuracy, active.triplet_accuracy,
          candidate.held_out_triplets, None),
@@ -116,16 +155,71 @@ def decide(candidate: ModelScore, active: ModelScore | None) -> GateDecision:
         if cand is None or act is None or count == 0:
             reasons.append(f"{name}: not measured" + (f" ({why_not})" if why_not else ""))
             continue
-        measured += 1
-        tolerance = 1.0 / count
-        verdict = "worse" if cand < act - tolerance - 1e-9 else "not worse"
-        worse |= verdict == "worse"
+        verdict = compare(cand, act, count)
+        verdicts.append(verdict)
+        shortfall = f"; a gain needs at least {MIN_ITEMS}, this had {count}" if count < MIN_ITEMS else ""
         reasons.append(
-            f"{name}: candidate {cand:.3f} vs active {act:.3f} ({verdict}, tolerance {tolerance:.3f})"
+            f"{name}: candidate {cand:.3f} vs active {act:.3f} on {count} ({_WORDS[verdict]}{shortfall})"
         )
-    if not measured:
-        return GateDecision(False, [*reasons, "nothing could be measured: the candidate stays a candidate"])
-    return GateDecision(not worse, reasons)
+    details = _per_command(candidate, active, names)
+    if not verdicts:
+        summary = "Nothing could be measured, so nothing changed: kept the old version."
+        return GateDecision(False, [*reasons, "nothing could be measured: the candidate stays a candidate"],
+                            Verdict.NO_CHANGE, summary)  # fmt: skip
+    overall = (
+        Verdict.WORSE if Verdict.WORSE in verdicts
+        else Verdict.BETTER if Verdict.BETTER in verdicts
+        else Verdict.NO_CHANGE
+    )  # fmt: skip
+    return GateDecision(
+        overall == Verdict.BETTER, reasons, overall, _summary(overall, candidate, active, details)
+    )
+
+
+_WORDS = {
+    Verdict.BETTER: "better",
+    Verdict.NO_CHANGE: "no measurable change",
+    Verdict.WORSE: "worse",
+}
+
+
+def _per_command(candidate: ModelScore, active: ModelScore, names: dict[int, str]) -> list[str]:
+    """ "*two* now works in 8 of 10 tries, was 3 of 10" for every command whose rate changed."""
+    new, old = candidate.sim_success_by_intent, active.sim_success_by_intent
+    if not new or not old or not candidate.sim_episodes:
+        return []
+    tries = candidate.sim_episodes // max(1, sum(rate is not None for rate in new))
+    lines = []
+    for intent, (now, before) in enumerate(zip(new, old, strict=False)):
+        if now is None or before is None or round(now * tries) == round(before * tries):
+            continue
+        word = names.get(intent, f"target {intent + 1}")
+        works, worked = round(now * tries), round(before * tries)
+        lines.append(f"*{word}* now works in {works} of {tries} tries, was {worked} of {tries}")
+    return lines
+
+
+def _summary(verdict: Verdict, candidate: ModelScore, active: ModelScore, details: list[str]) -> str:
+    said = "; ".join(details)
+    if verdict == Verdict.BETTER:
+        return f"Better: {said or _accuracy_change(candidate, active)}; the new version is active."
+    if verdict == Verdict.WORSE:
+        return f"Worse: {said or _accuracy_change(candidate, active)}; kept the old version."
+    count = candidate.held_out_triplets
+    evidence = (
+        f" (a claim needs at least {MIN_ITEMS} held-out answers or tries; this run had {count})"
+        if max(count, candidate.sim_episodes) < MIN_ITEMS
+        else ""
+    )
+    return f"No measurable change{evidence}; kept the old version."
+
+
+def _accuracy_change(candidate: ModelScore, active: ModelScore) -> str:
+    count = candidate.held_out_triplets
+    if candidate.triplet_accuracy is None or active.triplet_accuracy is None or not count:
+        return "the measures moved"
+    now, before = round(candidate.triplet_accuracy * count), round(active.triplet_accuracy * count)
+    return f"it now matches {now} of {count} held-out answers, was {before} of {count}"
 
 
 def summarise_scores(candidate: ModelScore, active: ModelScore | None) -> dict[str, Any]:

@@ -2,6 +2,7 @@
 the model version it gives — created as a candidate (once: `model_versions.run_id` is unique) and promoted
 or kept by the gate (`worker.evaluation.decide`)."""
 
+from collections import Counter, defaultdict
 from dataclasses import dataclass
 from typing import Any
 
@@ -38,19 +39,43 @@ def conclude(session: Session, run: models.Run, context: RunContext, state: RunS
         metrics["evaluation"] = {"active": active.to_dict() if active else None}
         return Conclusion(metrics, "evaluated")
     candidate = ModelScore(**scores["candidate"])
-    decision = decide(candidate, active)
+    decision = decide(candidate, active, command_words(session, context))
     metrics["evaluation"] = summarise_scores(candidate, active)
-    metrics["gate"] = {"promoted": decision.promote, "reasons": decision.reasons}
+    metrics["gate"] = {
+        "promoted": decision.promote,
+        "verdict": decision.verdict.value,
+        "summary": decision.summary,
+        "min_items_for_a_claim": decision.min_items,
+        "reasons": decision.reasons,
+    }
     version = _candidate_version(session, run, context, metrics)
     version.metrics = {
         **(version.metrics or {}),
         "evaluation": metrics["evaluation"],
         "gate": metrics["gate"],
     }
-    verdict = "promoted" if decision.promote else "kept as candidate"
-    version.notes = f"{verdict}: " + "; ".join(decision.reasons)
+    kept = "promoted" if decision.promote else "kept as candidate"
+    version.notes = (
+        f"{decision.verdict.value}, {kept}: {decision.summary} (" + "; ".join(decision.reasons) + ")"
+    )
     metrics["model_version_id"] = version.id
-    return Conclusion(metrics, f"version {version.id} {verdict}", version if decision.promote else None)
+    return Conclusion(metrics, f"version {version.id} {kept}", version if decision.promote else None)
+
+
+def command_words(session: Session, context: RunContext) -> dict[int, str]:
+    """The household's word for each of the world's targets: the most common name among the recordings the
+    simulator's account of the *is* answers ties to it (scoring only, never a label)."""
+    data = context.data
+    names = dict(
+        session.execute(
+            select(models.Clip.id, models.Clip.name).where(models.Clip.id.in_(data.clip_ids.tolist()))
+        ).all()
+    )
+    votes: dict[int, Counter[str]] = defaultdict(Counter)
+    for clip_id, intent in zip(data.clip_ids.tolist(), data.clip_intent.tolist(), strict=True):
+        if intent >= 0:
+            votes[intent][names.get(clip_id) or f"clip {clip_id}"] += 1
+    return {intent: counter.most_common(1)[0][0] for intent, counter in votes.items()}
 
 
 def _candidate_version(

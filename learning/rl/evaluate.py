@@ -11,6 +11,7 @@ share through `RLInfo`'s schedule), so every method meets exactly the same layou
 """
 
 import json
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -60,10 +61,14 @@ class EvalResult:
         return data
 
 
-def episode_schedule(num_intents: int, episodes_per_intent: int, seed: int) -> list[tuple[int, int]]:
-    """The fixed evaluation list: (intent, layout seed) for every episode, intents interleaved."""
-    seeds = np.random.SeedSequence([seed, 20230529]).generate_state(num_intents * episodes_per_intent)
-    return [(k % num_intents, int(seeds[k])) for k in range(num_intents * episodes_per_intent)]
+def episode_schedule(
+    num_intents: int, episodes_per_intent: int, seed: int, intents: Sequence[int] | None = None
+) -> list[tuple[int, int]]:
+    """The fixed evaluation list: (intent, layout seed) for every episode, intents interleaved; `intents`
+    limits it to those (a household whose commands name only some of the world's targets)."""
+    chosen = list(range(num_intents)) if intents is None else sorted(set(intents))
+    seeds = np.random.SeedSequence([seed, 20230529]).generate_state(len(chosen) * episodes_per_intent)
+    return [(chosen[k % len(chosen)], int(seeds[k])) for k in range(len(chosen) * episodes_per_intent)]
 
 
 def deal(schedule: list[tuple[int, int]], num_envs: int) -> list[list[tuple[int, int]]]:
@@ -86,6 +91,7 @@ def evaluate(
     gif_path: Path | None = None,
     gif_episodes: int = 4,
     progress: bool = True,
+    intents: Sequence[int] | None = None,
 ) -> EvalResult:
     from tqdm.auto import tqdm
 
@@ -93,7 +99,7 @@ def evaluate(
         raise ValueError("evaluation needs goal clips with known intents (an unheard tier of a corpus)")
     policy = policy.eval() if policy is not None else RandomPolicy(seed)
     config = policy.config
-    schedule = episode_schedule(NUM_INTENTS, episodes_per_intent, seed)
+    schedule = episode_schedule(NUM_INTENTS, episodes_per_intent, seed, intents)
     num_envs = min(num_envs, len(schedule))
     shares = deal(schedule, num_envs)
     envs = make_vector_env(

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from backend import models
-from worker.evaluation import ModelScore, decide
+from worker.evaluation import MIN_ITEMS, ModelScore, Verdict, compare, decide
 from worker.household import SILENCE_ROW, HouseholdData, TooFewTriplets, derive_triplets
 
 
@@ -88,22 +88,46 @@ def _score(
     return ModelScore(accuracy, triplets, success, episodes if success is not None else 0)
 
 
-def test_the_gate_promotes_only_a_candidate_that_is_not_worse_on_either_measure() -> None:
-    assert decide(_score(0.90, 0.60), _score(0.80, 0.50)).promote
-    assert decide(_score(0.80, 0.50), _score(0.80, 0.50)).promote, "equal is not worse"
-    assert decide(_score(0.79, 0.50), _score(0.80, 0.50)).promote, "within one triplet's worth"
-    rejected = decide(_score(0.95, 0.40), _score(0.80, 0.50))
-    assert (
-        not rejected.promote
-        and "simulated success" in rejected.reasons[1]
-        and "(worse" in rejected.reasons[1]
-    )
-    assert not decide(_score(0.60, 0.90), _score(0.80, 0.50)).promote
-    unmeasured_sim = decide(_score(0.90, None), _score(0.80, None))
+def test_the_gate_promotes_only_a_measurably_better_candidate() -> None:
+    better = decide(_score(0.90, 0.60), _score(0.70, 0.50))
+    assert better.promote and better.verdict == Verdict.BETTER, better.reasons
+    same = decide(_score(0.80, 0.50), _score(0.80, 0.50))
+    assert not same.promote and same.verdict == Verdict.NO_CHANGE
+    assert same.summary.startswith("No measurable change") and "kept the old version" in same.summary
+    slightly = decide(_score(0.84, 0.50), _score(0.80, 0.50))
+    assert slightly.verdict == Verdict.NO_CHANGE, "four points on 50 triplets is within the noise"
+    worse = decide(_score(0.95, 0.20), _score(0.80, 0.50))
+    assert worse.verdict == Verdict.WORSE and not worse.promote, "worse on either measure is worse"
+    assert "simulated success" in worse.reasons[1] and "(worse" in worse.reasons[1]
+    assert worse.summary.startswith("Worse") and "kept the old version" in worse.summary
+    unmeasured_sim = decide(_score(0.95, None), _score(0.70, None))
     assert unmeasured_sim.promote and unmeasured_sim.reasons[1].endswith("not measured")
     no_goals = _score(0.90, None)
-    no_goals.sim_note = "no recorded command is known to mean intent(s) [3]"
+    no_goals.sim_note = "no 'is' answer yet"
     explained = decide(no_goals, _score(0.80, None))
-    assert explained.reasons[1].endswith("not measured (no recorded command is known to mean intent(s) [3])")
+    assert explained.reasons[1].endswith("not measured (no 'is' answer yet)")
     assert not decide(_score(None, None), _score(None, None)).promote, "nothing measured: nothing promoted"
     assert decide(_score(0.1, 0.0), None).promote, "the first version of a robot becomes active"
+
+
+def test_a_gain_is_never_claimed_from_fewer_held_out_triplets_than_the_rule_needs() -> None:
+    assert MIN_ITEMS == 50, "2 standard errors of a difference at p = 1/2 clear a 20-point gain from 50 items"
+    assert compare(1.0, 0.0, MIN_ITEMS - 1) == Verdict.NO_CHANGE, "even the largest gain, from 49 triplets"
+    assert compare(1.0, 0.0, MIN_ITEMS) == Verdict.BETTER
+    assert compare(0.70, 0.50, MIN_ITEMS) == Verdict.BETTER, "20 points at the worst-case spread"
+    assert compare(0.65, 0.50, MIN_ITEMS) == Verdict.NO_CHANGE
+    assert compare(0.0, 1.0, 7) == Verdict.WORSE, "a clear loss needs no minimum: it only keeps the old"
+    seven = decide(_score(1.0, None, triplets=7), _score(0.71, None, triplets=7))
+    assert seven.verdict == Verdict.NO_CHANGE and not seven.promote
+    assert "needs at least 50 held-out answers or tries; this run had 7" in seven.summary
+
+
+def test_the_gate_says_what_changed_in_the_households_own_command_words() -> None:
+    candidate, active = _score(0.80, 0.55, episodes=80), _score(0.80, 0.30, episodes=80)
+    candidate.sim_success_by_intent = [0.5, 0.5, 0.8, 0.4]
+    active.sim_success_by_intent = [0.5, 0.3, 0.3, 0.1]
+    decision = decide(candidate, active, {0: "zero", 1: "one", 2: "two", 3: "three"})
+    assert decision.verdict == Verdict.BETTER
+    assert "*two* now works in 16 of 20 tries, was 6 of 20" in decision.summary
+    assert "*zero*" not in decision.summary, "an unchanged command is not mentioned"
+    assert decision.summary.endswith("the new version is active.")
