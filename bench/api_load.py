@@ -234,9 +234,31 @@ async def uploading(base: str, people: list[dict], seconds: float, clients: int)
     }
 
 
+def start_api(
+    cleanup: contextlib.ExitStack, folder: Path, database_url: str, settings: dict[str, str] | None = None
+) -> tuple[subprocess.Popen, str, dict[str, str]]:
+    """Redis, the migrations and one uvicorn process (production settings) on free ports, stopped by
+    `cleanup`: the server process, its base URL and the environment it runs with."""
+    sock = folder / "redis.sock"
+    env = os.environ | {
+        "VARBOT_DATA_DIR": str(folder / "data"),
+        "VARBOT_DATABASE_URL": database_url,
+        "VARBOT_BROKER_URL": broker_url(sock),
+        "VARBOT_ENVIRONMENT": "production",
+        "VARBOT_SECRET_KEY": "bench-" + os.urandom(16).hex(),
+        **(settings or {}),
+    }
+    running = cleanup.enter_context(services.Stack(folder / "logs", env))
+    running.start(redis_service(sock, persist=False))
+    running.migrate(quiet=True)
+    port = free_port()
+    server = running.start(api_service("127.0.0.1", port, quiet=True)).process
+    assert server is not None
+    return server, api_url("127.0.0.1", port), env
+
+
 def measure(database: str, args: argparse.Namespace) -> dict:
     folder = Path(tempfile.mkdtemp(prefix=f"vb-bench-{database}-"))
-    sock = folder / "redis.sock"
     with contextlib.ExitStack() as cleanup:
         cleanup.callback(shutil.rmtree, folder, ignore_errors=True)
         if database == "postgresql":
@@ -247,20 +269,7 @@ def measure(database: str, args: argparse.Namespace) -> dict:
             database_url = create_postgres_database(server_url, "varbot")
         else:
             database_url = f"sqlite:///{folder / 'varbot.db'}"
-        env = os.environ | {
-            "VARBOT_DATA_DIR": str(folder / "data"),
-            "VARBOT_DATABASE_URL": database_url,
-            "VARBOT_BROKER_URL": broker_url(sock),
-            "VARBOT_ENVIRONMENT": "production",
-            "VARBOT_SECRET_KEY": "bench-" + os.urandom(16).hex(),
-        }
-        running = cleanup.enter_context(services.Stack(folder / "logs", env))
-        running.start(redis_service(sock, persist=False))
-        running.migrate(quiet=True)
-        port = free_port()
-        server = running.start(api_service("127.0.0.1", port, quiet=True)).process
-        assert server is not None
-        base = api_url("127.0.0.1", port)
+        server, base, env = start_api(cleanup, folder, database_url)
         households = max(1, args.clients // args.members_per_household)
         people = asyncio.run(seed(base, households, args.members_per_household, args.snapshots, env))
         watch = ServerWatch(server.pid)
