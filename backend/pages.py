@@ -1,7 +1,8 @@
 """The pages people use (static files from `frontend/`) and the 3D scene, reached only through the app.
 
 `install_pages(app)` adds:
-- `/`, `/login`, `/record`, `/label`, `/progress`, `/admin`, `/household`, `/scene`: the HTML pages;
+- `/` (the Start page's first-run checklist, also at `/home`), `/login`, `/record`, `/label`, `/progress`,
+  `/admin`, `/household`, `/scene`: the HTML pages;
 - `/static/…`: their CSS and ES modules (no build step);
 - `/api/v1/system/queues`: queue lengths and the workers that answer (admins; see backend/system_status.py);
 - `/scene/status`: whether the scene can be shown to the signed-in member, and why not, and how many
@@ -24,7 +25,7 @@ from typing import Any
 import httpx
 import websockets
 from fastapi import FastAPI, HTTPException, Request, WebSocket, WebSocketDisconnect, status
-from fastapi.responses import FileResponse, JSONResponse, RedirectResponse, Response
+from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from starlette.datastructures import Headers
 from websockets.asyncio.client import ClientConnection
@@ -36,7 +37,7 @@ from backend.system_status import router as system_router
 from core.paths import REPO_ROOT, data_dir
 
 FRONTEND_DIR = REPO_ROOT / "frontend"
-PAGES = ("login", "record", "label", "progress", "admin", "household", "scene")
+PAGES = ("home", "login", "record", "label", "progress", "admin", "household", "scene")
 SCENE_PREFIX = "/scene/viser"
 _HOP_BY_HOP = {
     "connection",
@@ -101,10 +102,7 @@ def install_pages(app: FastAPI, api_prefix: str = "/api/v1") -> None:
     app.include_router(system_router, prefix=api_prefix)
     app.mount("/static", StaticFiles(directory=FRONTEND_DIR / "static"), name="static")
 
-    @app.get("/", include_in_schema=False)
-    def home() -> RedirectResponse:
-        return RedirectResponse("/record")
-
+    app.add_api_route("/", _page_handler("home"), methods=["GET"], include_in_schema=False)
     for page in PAGES:
         app.add_api_route(f"/{page}", _page_handler(page), methods=["GET"], include_in_schema=False)
 

@@ -245,7 +245,7 @@ class ConsoleWatch:
 
 
 def sign_in(page: object, url: str, username: str = "alice") -> None:
-    open_page(page, f"{url}/login")
+    open_page(page, f"{url}/login?next=/record")  # the tests start on the Record page; people on Start
     page.get_by_label("Username").fill(username)  # type: ignore[attr-defined]
     page.get_by_label("Password").fill(PASSWORD)  # type: ignore[attr-defined]
     page.get_by_role("button", name="Sign in").click()  # type: ignore[attr-defined]

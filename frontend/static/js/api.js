@@ -10,13 +10,36 @@ export class ApiError extends Error {
   }
 }
 
-/** FastAPI errors are a string, or a list of {loc, msg} for invalid input: make either readable. */
+/** FastAPI errors are a string, or a list of {loc, msg, type, ctx} for invalid input: say either in plain words. */
 export function describeDetail(detail) {
   if (typeof detail === "string") return detail;
-  if (Array.isArray(detail)) {
-    return detail.map((item) => `${(item.loc || []).filter((p) => p !== "body").join(".")}: ${item.msg}`).join("; ");
-  }
+  if (Array.isArray(detail)) return detail.map(plainIssue).join(" ");
   return detail ? JSON.stringify(detail) : "";
+}
+
+// What each field is called on the pages, and what a valid value looks like where a pattern decides.
+const FIELD_NAMES = { username: "The username", password: "The password", new_password: "The new password",
+  display_name: "The name", name: "The name", role: "The role", kind: "The kind", count: "The number" };
+const PATTERN_RULES = {
+  username: "may hold only lower-case letters, digits, dots, dashes and underscores, and must start with a letter or a digit",
+};
+
+/** One validation issue as a sentence, e.g. "The username must be at least 3 characters long." */
+export function plainIssue(item) {
+  const field = (item.loc || []).filter((p) => p !== "body" && p !== "query" && p !== "path").pop();
+  const subject = FIELD_NAMES[field] || (field ? `The ${String(field).replaceAll("_", " ")}` : "This value");
+  const ctx = item.ctx || {};
+  const sentences = {
+    missing: `${subject} is missing: fill it in.`,
+    string_too_short: ctx.min_length > 1 ? `${subject} must be at least ${ctx.min_length} characters long.` : `${subject} cannot be empty.`,
+    string_too_long: `${subject} can be at most ${ctx.max_length} characters long.`,
+    string_pattern_mismatch: `${subject} ${PATTERN_RULES[field] || "has characters that are not allowed"}.`,
+    enum: `${subject} must be one of: ${ctx.expected || "the choices offered"}.`,
+    greater_than_equal: `${subject} must be at least ${ctx.ge}.`,
+    less_than_equal: `${subject} can be at most ${ctx.le}.`,
+    int_parsing: `${subject} must be a whole number.`,
+  };
+  return sentences[item.type] || `${subject}: ${item.msg}.`;
 }
 
 export function csrfToken() {

@@ -2,6 +2,7 @@
 import { api } from "./api.js";
 
 const LINKS = [
+  ["", "Start"],
   ["record", "Record"],
   ["label", "Label"],
   ["progress", "Progress"],
@@ -15,6 +16,7 @@ export async function startPage(active, { adminOnly = false } = {}) {
   const me = await api("/auth/me");
   const household = await api("/household");
   drawHeader(active, me, household);
+  offerShortcutList();
   if (adminOnly && me.role !== "admin") {
     stopPage("Only a household admin can use this page. Ask an admin of your household to give you the admin role.", "warn");
     throw new PageStopped();
@@ -40,7 +42,7 @@ function drawHeader(active, me, household) {
     .map(([page, title]) => `<li><a href="/${page}"${page === active ? ' aria-current="page"' : ""}>${title}</a></li>`)
     .join("");
   header.innerHTML = `
-    <a class="brand" href="/record">varbot</a>
+    <a class="brand" href="/">varbot</a>
     <nav aria-label="Pages"><ul>${links}</ul></nav>
     <div class="who"><span></span><button type="button" class="signout">Sign out</button></div>`;
   header.querySelector(".who span").textContent = `${me.display_name} · ${household.name}${me.role === "admin" ? " (admin)" : ""}`;
@@ -97,6 +99,12 @@ export function element(tag, attributes = {}, ...children) {
 
 const ROBOT_KEY = "varbot.robot";
 
+/** The robot chosen on an earlier page, or the household's first; null without robots. */
+export function savedRobot(robots) {
+  const saved = localStorage.getItem(ROBOT_KEY);
+  return robots.find((r) => String(r.id) === saved) || robots[0] || null;
+}
+
 /** Fills a <select> with the household's robots; remembers the choice across pages. */
 export async function robotPicker(select, onChange = () => {}) {
   const robots = await api("/robots");
@@ -104,14 +112,55 @@ export async function robotPicker(select, onChange = () => {}) {
   for (const robot of robots) {
     select.append(element("option", { value: robot.id, text: `${robot.name} (${robot.kind})` }));
   }
-  const saved = localStorage.getItem(ROBOT_KEY);
-  if (saved && robots.some((r) => String(r.id) === saved)) select.value = saved;
+  const saved = savedRobot(robots);
+  if (saved) select.value = saved.id;
   select.addEventListener("change", () => {
     localStorage.setItem(ROBOT_KEY, select.value);
     onChange(robotById(select.value));
   });
   const robotById = (id) => robots.find((r) => String(r.id) === String(id)) || null;
   return { robots, current: () => robotById(select.value) };
+}
+
+// --- the "?" shortcut list -----------------------------------------------------------------------------------
+
+/** The page's shortcuts, from its controls' aria-keyshortcuts and their names: [[keys, what it does]]. */
+function pageShortcuts() {
+  return [...document.querySelectorAll("main [aria-keyshortcuts]")]
+    .filter((control) => !control.closest("[hidden]"))
+    .map((control) => [control.getAttribute("aria-keyshortcuts"), control.dataset.shortcut || shortcutName(control)]);
+}
+
+function shortcutName(control) {
+  const copy = control.cloneNode(true);
+  copy.querySelectorAll("kbd").forEach((kbd) => kbd.remove());
+  return (control.getAttribute("aria-label") || copy.textContent).trim();
+}
+
+const hasShortcuts = () => document.querySelector("main [aria-keyshortcuts]") !== null;
+
+/** On a page with keyboard shortcuts, "?" (or the header's button) opens their list; Escape closes it. */
+function offerShortcutList() {
+  if (!hasShortcuts()) return;
+  const dialog = element("dialog", { class: "shortcuts", "aria-labelledby": "shortcuts-title" });
+  document.body.append(dialog);
+  const open = () => {
+    const rows = pageShortcuts().flatMap(([keys, what]) => [element("dt", {}, element("kbd", { text: keys })), element("dd", { text: what })]);
+    dialog.replaceChildren(
+      element("h2", { id: "shortcuts-title", text: "Keyboard shortcuts" }),
+      element("dl", {}, ...rows, element("dt", {}, element("kbd", { text: "?" })), element("dd", { text: "Show this list" })),
+      element("button", { type: "button", text: "Close", onclick: () => dialog.close() }),
+    );
+    if (!dialog.open) dialog.showModal();
+  };
+  const button = element("button", { type: "button", class: "shortcuts-button", "aria-keyshortcuts": "?", "aria-label": "Keyboard shortcuts", text: "?", onclick: open });
+  document.querySelector("header.top .who").prepend(button);
+  document.addEventListener("keydown", (event) => {
+    const tag = event.target.tagName;
+    if (event.key !== "?" || event.ctrlKey || event.metaKey || tag === "INPUT" || tag === "TEXTAREA" || tag === "SELECT") return;
+    event.preventDefault();
+    open();
+  });
 }
 
 export function when(iso) {

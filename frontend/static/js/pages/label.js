@@ -1,5 +1,5 @@
 import { api } from "../api.js";
-import { pageFailed, pageReady, robotPicker, say, startPage } from "../shell.js";
+import { element, pageFailed, pageReady, robotPicker, say, startPage } from "../shell.js";
 
 const $ = (id) => document.getElementById(id);
 const message = $("label-message");
@@ -58,16 +58,23 @@ function play() {
   audio.play().catch(() => say(message, "Press Replay (R) to hear the command."));
 }
 
+/** Why there is nothing to ask, and what to do next. */
 async function dryQueue(serverMessage) {
-  const clips = await api("/clips?limit=1");
+  const robot = picker.current();
+  const [clips, views] = await Promise.all([api("/clips?limit=1"), robot ? api(`/snapshots?robot_id=${robot.id}&limit=1`) : []]);
   const noClips = clips.length === 0;
-  $("go-record").hidden = !noClips;
-  $("capture").hidden = noClips || !(picker.current() && picker.current().kind.endsWith("-sim"));
-  $("dry-message").textContent = noClips
-    ? "Nothing to ask yet: record a command first."
-    : waitingForViews
-      ? "Rendering new camera views… they appear here in a moment."
-      : "Every pair is answered. Capture more camera views to keep going.";
+  $("go-admin").hidden = Boolean(robot);
+  $("go-record").hidden = !robot || !noClips;
+  $("capture").hidden = !robot || noClips || !robot.kind.endsWith("-sim");
+  $("dry-message").textContent = !robot
+    ? "No robot yet: an admin of your household adds one on the Admin page."
+    : noClips
+      ? "Nothing to ask yet: record a command first, on the Record page."
+      : waitingForViews
+        ? "Rendering new camera views… they appear here in a moment."
+        : views.length === 0
+          ? `No camera views of ${robot.name} yet: capture some with the button below${robot.kind.endsWith("-sim") ? "" : " (a real robot sends its own frames)"}.`
+          : "Every pair is answered. Capture more camera views to keep going.";
 }
 
 async function advance(note) {
@@ -80,6 +87,10 @@ async function refreshCounters() {
   $("answered").textContent = stats.labels;
   $("triplets").textContent = stats.triplets;
   $("session-count").textContent = sessionCount;
+  const line = (count) => element("li", {}, element("strong", { text: String(count.triplets) }), ` ${count.name}`);
+  $("per-command").replaceChildren(...stats.per_command.map(line));
+  $("per-member").replaceChildren(...stats.per_member.map(line));
+  $("per-counts").hidden = stats.triplets === 0;
 }
 
 async function answer(verdict) {

@@ -5,8 +5,8 @@ const form = document.getElementById("login");
 const message = document.getElementById("login-message");
 
 function nextPage() {
-  const next = new URLSearchParams(location.search).get("next") || "/record";
-  return next.startsWith("/") && !next.startsWith("//") ? next : "/record"; // never leave the site
+  const next = new URLSearchParams(location.search).get("next") || "/";
+  return next.startsWith("/") && !next.startsWith("//") ? next : "/"; // never leave the site
 }
 
 form.addEventListener("submit", async (event) => {

@@ -1,6 +1,7 @@
 import { api, uploadWithProgress } from "../api.js";
 import { Recorder } from "../recorder.js";
-import { element, pageFailed, pageReady, say, startPage, when } from "../shell.js";
+import { describeCounts, groupCommands, targetsSentence } from "../commands.js";
+import { element, pageFailed, pageReady, savedRobot, say, startPage, when } from "../shell.js";
 
 const MIN_SECONDS = 0.3;
 const MAX_SECONDS = 10;
@@ -74,19 +75,25 @@ function showReview(visible) {
   if (!visible) take = null;
 }
 
+/** The name the recording is kept under: the chosen command's, or the new command's as typed. */
+function commandName() {
+  return $("command").value || $("clip-name").value.trim();
+}
+
 async function keep(blob, filename) {
   const form = new FormData();
   form.append("file", blob, filename);
-  const name = $("clip-name").value.trim();
+  const name = commandName();
   if (name) form.append("name", name);
   $("upload").hidden = false;
   $("upload-progress").value = 0;
   $("keep").disabled = true;
   try {
     const clip = await uploadWithProgress("/clips", form, (fraction) => ($("upload-progress").value = fraction));
-    say(message, `Kept: recording ${clip.id} (${clip.duration_s.toFixed(1)} s).`, "ok");
+    const kept = clip.name ? `Kept: recording ${clip.id} of “${clip.name}” (${clip.duration_s.toFixed(1)} s).` : `Kept: recording ${clip.id} (${clip.duration_s.toFixed(1)} s). It has no command name, so it counts as a command of its own.`;
+    say(message, kept, clip.name ? "ok" : "warn");
     showReview(false);
-    await listClips();
+    await Promise.all([listClips(), listCommands(clip.name)]);
   } catch (error) {
     say(message, `The server did not accept this recording: ${error.message}`, "error");
   } finally {
@@ -128,6 +135,35 @@ async function listClips() {
       ),
     );
   }
+}
+
+/** The household's commands, each with its recordings per member; they are also the choices of "Which command is this?". */
+async function listCommands(choose = undefined) {
+  const [clips, members] = await Promise.all([api("/clips?limit=1000"), api("/members")]);
+  const names = new Map(members.map((m) => [m.id, m.display_name]));
+  const commands = groupCommands(clips).filter((c) => c.named);
+  const select = $("command");
+  const chosen = choose === undefined ? select.value : choose || "";
+  select.replaceChildren(element("option", { value: "", text: "a new command" }), ...commands.map((c) => element("option", { value: c.name, text: `${c.name} (${c.clips.length} recorded)` })));
+  const same = commands.find((c) => c.name.toLocaleLowerCase() === chosen.toLocaleLowerCase());
+  select.value = same ? same.name : "";
+  showNameField();
+  $("commands-empty").hidden = commands.length > 0;
+  $("commands").replaceChildren(...commands.map((command) => element("li", { "data-command": command.name },
+    element("strong", { text: command.name }), " ",
+    element("span", { class: "muted", text: describeCounts(command.clips.length, "recording", command.bySpeaker, names) + (command.clips.length < 2 ? " · record it once more" : "") }))));
+}
+
+function showNameField() {
+  const isNew = $("command").value === "";
+  $("new-command").hidden = !isNew;
+  if (!isNew) $("clip-name").value = "";
+}
+
+async function showTargets() {
+  const robot = savedRobot(await api("/robots"));
+  $("targets").hidden = !robot;
+  if (robot) $("targets").textContent = targetsSentence(robot);
 }
 
 function isTyping(event) {
@@ -175,9 +211,10 @@ async function main() {
     if (file) await keep(file, file.name);
     event.target.value = "";
   });
+  $("command").addEventListener("change", showNameField);
   talk.disabled = $("file").disabled = false; // disabled in the HTML until their handlers exist
   pageReady();
-  await listClips();
+  await Promise.all([listClips(), listCommands(), showTargets()]);
 }
 
 main().catch(pageFailed);
