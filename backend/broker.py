@@ -14,6 +14,7 @@ from backend.settings import get_settings
 QUEUE_ROBOT = "robot"
 QUEUE_TRAINING = "training"
 TASK_CAPTURE_SNAPSHOTS = "varbot.capture_snapshots"
+TASK_TRY_COMMANDS = "varbot.try_commands"  # the robot's attempts at the household's commands
 RUN_TASKS: dict[RunKind, str] = {
     RunKind.FINETUNE: "varbot.finetune",
     RunKind.VAR_FINETUNE: "varbot.var_finetune",
@@ -38,6 +39,13 @@ def rollout_channel(household_id: int) -> str:
     "goal_clip_id" (or null), "mirror" (env 0's pose, see sim/mirror.py), "sent_at" (Unix time the
     worker took the step; at most 10 a second)}`."""
     return f"varbot:rollouts:{household_id}"
+
+
+def attempts_status_key(task_id: str) -> str:
+    """Redis key of a `TASK_TRY_COMMANDS` task's state: JSON {"state": queued | running | done | refused |
+    failed, "message", "created" (attempts stored), "random_views", "robot_id"}; the API writes it queued, the
+    worker the rest."""
+    return f"varbot:attempts:{task_id}"
 
 
 @lru_cache

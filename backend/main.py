@@ -4,7 +4,18 @@ from fastapi import FastAPI, Request
 from fastapi.responses import JSONResponse
 
 from backend.api.responses import document_errors
-from backend.api.routes import auth, clips, health, labels, members, models, robots, runs, snapshots
+from backend.api.routes import (
+    attempts,
+    auth,
+    clips,
+    health,
+    labels,
+    members,
+    models,
+    robots,
+    runs,
+    snapshots,
+)
 from backend.blobs import BlobNotFound
 from backend.errors import ApiError
 from backend.headers import SecurityHeaders
@@ -22,7 +33,7 @@ def create_app() -> FastAPI:
         docs_url="/docs",
         redoc_url=None,
     )
-    for module in (auth, members, robots, clips, snapshots, labels, runs, models, health):
+    for module in (auth, members, robots, clips, snapshots, attempts, labels, runs, models, health):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(health.router, include_in_schema=False)  # plain /health for process supervisors
     document_errors(app)

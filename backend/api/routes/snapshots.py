@@ -10,6 +10,7 @@ from backend.deps import BlobsDep, CallerDep, SessionDep, SettingsDep
 from backend.errors import Conflict, Invalid, Unavailable
 from backend.schemas import Offset, PathId, QueryId
 from backend.services import robots, snapshots
+from backend.services.attempts import ATTEMPT_SOURCE
 
 router = APIRouter(tags=["snapshots"])
 
@@ -63,6 +64,8 @@ def upload_snapshot(
 ) -> models.Snapshot:
     """A frame from a robot's camera (real robots send theirs this way)."""
     robot = robots.get_robot(session, caller.household_id, robot_id)
+    if source == ATTEMPT_SOURCE:  # its meta names blobs the API serves: only the robot worker makes them
+        raise Invalid("attempts are made by the robot worker: POST …/attempts")
     data = image.file.read(settings.max_image_bytes + 1)
     return snapshots.create_snapshot(
         session,
