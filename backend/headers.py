@@ -3,7 +3,8 @@
 The app's own pages load nothing but their own files (no inline script or style: `frontend/` keeps to that)
 and may be framed by nobody. The Viser scene, proxied under /scene/viser/, is framed by the Scene page only;
 its client starts from an inline script that unpacks WebAssembly and injects its code and styles inline, and
-evaluates strings as code, so its own documents get a policy that allows that, still only from this origin."""
+evaluates strings as code, so its own documents get a policy that allows that, still only from this origin.
+The API's /docs page loads Swagger UI from its CDN and gets a policy of its own for that."""
 
 from starlette.datastructures import MutableHeaders
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
@@ -41,6 +42,19 @@ SCENE_POLICY = _policy(
     form_action="'none'",
     frame_ancestors="'self'",
 )
+# FastAPI's /docs page: Swagger UI from its CDN, started by an inline script; framed by nobody either.
+DOCS_CDN = "https://cdn.jsdelivr.net"
+DOCS_POLICY = _policy(
+    default_src="'self'",
+    script_src=f"'self' 'unsafe-inline' {DOCS_CDN}",
+    style_src=f"'self' 'unsafe-inline' {DOCS_CDN}",
+    img_src="'self' data: https://fastapi.tiangolo.com",
+    connect_src="'self'",
+    object_src="'none'",
+    base_uri="'none'",
+    frame_ancestors="'none'",
+)
+DOCS_PATHS = ("/docs", "/docs/oauth2-redirect")
 COMMON = {
     "X-Content-Type-Options": "nosniff",
     "Referrer-Policy": "same-origin",
@@ -51,6 +65,8 @@ COMMON = {
 def headers_for(path: str) -> dict[str, str]:
     if path == SCENE_PATH or path.startswith(SCENE_PATH + "/"):
         return {**COMMON, "Content-Security-Policy": SCENE_POLICY, "X-Frame-Options": "SAMEORIGIN"}
+    if path in DOCS_PATHS:
+        return {**COMMON, "Content-Security-Policy": DOCS_POLICY, "X-Frame-Options": "DENY"}
     return {**COMMON, "Content-Security-Policy": APP_POLICY, "X-Frame-Options": "DENY"}
 
 

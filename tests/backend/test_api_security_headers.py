@@ -44,6 +44,15 @@ def test_the_proxied_scene_may_be_framed_by_the_app_only(wired_app) -> None:
     assert "http" not in response.headers["Content-Security-Policy"]  # nothing from other origins
 
 
+def test_the_api_docs_may_load_swagger_ui_from_its_cdn_only(wired_app) -> None:
+    response = TestClient(wired_app).get("/docs")
+    assert response.status_code == 200
+    policy = directives(response.headers["Content-Security-Policy"])
+    for source in re.findall(r'(?:src|href)="(https://[^/"]+)', response.text):
+        assert source in policy["script-src"] + policy["style-src"] + policy["img-src"], source
+    assert policy["frame-ancestors"] == "'none'" and policy["connect-src"] == "'self'"
+
+
 @pytest.mark.parametrize("page", PAGES)
 def test_no_page_holds_what_its_policy_would_refuse(page: str) -> None:
     html = (FRONTEND_DIR / f"{page}.html").read_text()
