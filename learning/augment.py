@@ -2,6 +2,7 @@
 
 Waveforms (B, T) at 16 kHz: speed perturbation (tempo and pitch together, as `sox speed`), time shift,
 background noise at a random SNR, gain. Features (B, 100, 40) MFCC: gain, frame shift and SpecAugment masks.
+Frozen embedding frames (B, frames, values) of the speech-embedding front end: frame dropout and noise.
 Every function returns a new tensor of the input's shape and dtype; all-zero MFCC frames ("no sound")
 stay zero.
 """
@@ -68,6 +69,26 @@ def augment_features(
         config.coefficient_masks,
         config.coefficient_mask_width,
     )
+
+
+@dataclass(frozen=True)
+class EmbeddingAugment:
+    frame_drop: float = 0.25  # each heard frame left out of the clip with this probability
+    noise: float = 0.3  # Gaussian noise, in units of each value's spread over the batch's heard frames
+
+
+def augment_embeddings(
+    features: torch.Tensor, generator: torch.Generator, config: EmbeddingAugment = EmbeddingAugment()
+) -> torch.Tensor:
+    """Augment a batch (B, frames, values) of frozen embedding frames: drop heard frames (a clip keeps at
+    least one) and add noise to the rest. All-zero frames ("no sound") stay zero."""
+    heard = (features != 0).any(dim=2)
+    drop = torch.rand(heard.shape, generator=generator, device=features.device) < config.frame_drop
+    kept = heard & ~drop
+    kept = torch.where(kept.any(dim=1, keepdim=True), kept, heard)  # never drop a whole clip
+    spread = features[heard].std(dim=0) if heard.sum() > 1 else torch.ones(features.shape[2])
+    noise = torch.randn(features.shape, generator=generator, device=features.device) * spread * config.noise
+    return (features + noise) * kept[:, :, None].to(features.dtype)
 
 
 def perturb_speed(

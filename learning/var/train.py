@@ -58,7 +58,7 @@ class TrainConfig:
     val_fraction: float = 0.05
     eval_every_steps: int | None = None  # None: once per epoch
     patience: int | None = None  # stop after this many evaluations without a better held-out accuracy
-    augment: bool = True  # MFCC: learning.augment.augment_features; images: shift + brightness/contrast
+    augment: bool = True  # sounds: learning.augment (per front end); images: shift + brightness/contrast
     image_shift_fraction: float = 0.04
     image_jitter: float = 0.1
     in_view_share: float | None = 0.5  # share of each batch with a target in view; None: sample uniformly
@@ -131,11 +131,11 @@ def _load_corpus(name: str, front_end: str, progress: bool):
 def _sound_augmenter(
     enabled: bool, front_end: str
 ) -> Callable[[torch.Tensor, torch.Generator], torch.Tensor] | None:
-    if not enabled or front_end != MFCC:  # gain, frame shift and SpecAugment are MFCC augmentations
+    if not enabled:
         return None
-    from learning.augment import augment_features
+    from learning.augment import augment_embeddings, augment_features
 
-    return augment_features
+    return augment_features if front_end == MFCC else augment_embeddings
 
 
 def _schedule(config: TrainConfig, total_steps: int) -> Callable[[int], float]:

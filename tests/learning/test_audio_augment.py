@@ -6,9 +6,11 @@ import torch
 
 from learning.audio import SILENCE
 from learning.augment import (
+    EmbeddingAugment,
     FeatureAugment,
     WaveAugment,
     add_noise,
+    augment_embeddings,
     augment_features,
     augment_waveforms,
     perturb_speed,
@@ -117,3 +119,29 @@ def test_feature_gain_moves_only_the_energy_coefficient() -> None:
     torch.testing.assert_close(augmented[1:, :60, 1:], features[1:, :60, 1:])
     shift = augmented[1:, :60, 0] - features[1:, :60, 0]
     np.testing.assert_allclose(shift.numpy(), 6 * np.log(10) / 10 * np.sqrt(40), rtol=1e-4)
+
+
+def embedding_batch(batch: int = 64, frames: int = 11, heard: int = 6) -> torch.Tensor:
+    features = torch.zeros(batch, frames, 96)
+    features[:, :heard] = torch.randn(batch, heard, 96, generator=generator(5)) * 4 + 2
+    features[0] = 0  # silence
+    return features
+
+
+def test_embedding_augmentation_drops_heard_frames_adds_noise_and_keeps_silence() -> None:
+    features = embedding_batch()
+    augmented = augment_embeddings(features, generator(), EmbeddingAugment(frame_drop=0.25, noise=0.3))
+    assert augmented.shape == features.shape and augmented.dtype == features.dtype
+    heard_before, heard_after = (features != 0).any(dim=2), (augmented != 0).any(dim=2)
+    assert not augmented[0].any() and not heard_after[:, 6:].any()  # silence and padding stay zero
+    assert (heard_after <= heard_before).all() and heard_after[1:].any(dim=1).all()  # a clip keeps a frame
+    assert 0.15 < 1 - heard_after[1:].sum() / heard_before[1:].sum() < 0.35
+    kept = heard_after & heard_before
+    noise = (augmented - features)[kept] / features[heard_before].std(dim=0)
+    assert 0.25 < float(noise.std()) < 0.35
+
+
+def test_embedding_augmentation_never_empties_a_clip_of_one_frame() -> None:
+    features = embedding_batch(heard=1)
+    augmented = augment_embeddings(features, generator(), EmbeddingAugment(frame_drop=0.9, noise=0.0))
+    torch.testing.assert_close(augmented, features)
