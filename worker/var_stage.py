@@ -1,9 +1,10 @@
 """Stage 1: fine-tune the VAR on the household's own triplets (their voices, their room).
 
 Explicit triplets from pair labels (see `worker.household`), the paper's triplet loss, Adam, the VAR trainer's
-augmentations (sound: `learning.augment.augment_features`; image: shift + brightness/contrast). A checkpoint
-with the optimiser and RNG state is written after every epoch, so a killed worker resumes where it stopped;
-the weights with the best held-out triplet accuracy are kept.
+augmentations (sound: `learning.augment.augment_features`, or `augment_embeddings` for a speech-embedding VAR;
+image: shift + brightness/contrast). A checkpoint with the optimiser and RNG state is written after every
+epoch, so a killed worker resumes where it stopped; the weights with the best held-out triplet accuracy are
+kept.
 """
 
 import time
@@ -68,7 +69,7 @@ def finetune_var(
     margin: float = 1.0,
 ) -> VarFinetuneResult:
     """`on_epoch(fraction, record)` after every epoch; returning True stops (cancel) after the checkpoint."""
-    from learning.augment import augment_features
+    from learning.augment import augment_embeddings, augment_features
     from learning.var.image_augment import augment_images
     from learning.var.loss import triplet_loss
 
@@ -99,9 +100,10 @@ def finetune_var(
             if len(rows) < 2:  # batch norm cannot train on a single image
                 continue
             images = augment_images(torch.from_numpy(data.images[rows[:, 0]]), generator)
-            sounds = torch.cat([sound_batch(data, rows[:, 1]), sound_batch(data, rows[:, 2])])
-            if var.front_end == "mfcc":  # gain, frame shift and SpecAugment are MFCC augmentations
-                sounds = augment_features(sounds, generator)
+            augment_sounds = augment_features if var.front_end == "mfcc" else augment_embeddings
+            sounds = augment_sounds(
+                torch.cat([sound_batch(data, rows[:, 1]), sound_batch(data, rows[:, 2])]), generator
+            )
             positive, negative = var.encode_sound(sounds).split(len(rows))
             loss = triplet_loss(var.encode_image(images), positive, negative, margin)
             if not torch.isfinite(loss):
