@@ -99,6 +99,11 @@ def parse_arguments() -> argparse.Namespace:
         help="the policy also sees f_I(I_t)·f_S(S_goal), the reward it earns now (experimental)",
     )
     parser.add_argument("--episodes-per-intent", type=int, default=50)
+    parser.add_argument(
+        "--room",
+        default="training",
+        help="evaluate in this room: training, unseen_room, lamplit_room (core.rooms)",
+    )
     parser.add_argument("--max-minutes", type=float, default=None, help="stop a row after this wall time")
     parser.add_argument("--tag", default="full", help="label stored with the rows (e.g. reduced)")
     parser.add_argument("--resume", action="store_true", help="continue rows from their checkpoints")
@@ -192,12 +197,14 @@ def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
 
 def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     from core.paths import data_subdir
+    from core.rooms import world_room
     from learning.rl.baselines import method_config, needs_var
     from learning.rl.evaluate import evaluate, save_eval
+    from learning.rl.frozen_var import load_frozen_var
     from learning.rl.plots import plot_run, read_metrics
     from learning.rl.ppo import load_policy
     from learning.rl.rewards import corpus_bank
-    from learning.rl.run import load_frozen_var, train_run
+    from learning.rl.run import train_run
     from learning.sounds import load_corpus
 
     row, method = key.split(":")
@@ -205,8 +212,9 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     ensure_corpus(sounds)
     var_path = ensure_var(world, sounds, args) if needs_var(method) else None
     image_size = args.image_size
-    if image_size is None and var_path is not None:
-        image_size = int(load_frozen_var(var_path).config.image_size)
+    loaded_var = load_frozen_var(var_path)  # read once, for the run and its evaluation
+    if image_size is None and loaded_var is not None:
+        image_size = loaded_var.image_size
     config = method_config(
         method,
         world=world,
@@ -235,12 +243,12 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
             save_results(results)
         return args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
 
-    summary = train_run(config, run_dir, var_path, resume=args.resume, on_update=on_update)
+    summary = train_run(config, run_dir, loaded_var, resume=args.resume, on_update=on_update)
     records = read_metrics(run_dir)
     wall = sum(config.batch_size / r["sps"] for r in records)
     complete = summary["env_steps"] >= config.num_updates * config.batch_size
     policy, payload = load_policy(run_dir / "checkpoint.pt")
-    var = load_frozen_var(var_path)
+    var = loaded_var.model if loaded_var is not None else None
     corpus = load_corpus(sounds)
     understood = goal_clips_understood(var, corpus) if var is not None else None
     evaluations = {}
@@ -249,9 +257,12 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         if var is not None:
             goals.embed(var)
         result = evaluate(policy, var, goals, world, config.image_size, split=split,
-                          episodes_per_intent=args.episodes_per_intent, seed=2023)  # fmt: skip
+                          episodes_per_intent=args.episodes_per_intent, seed=2023,
+                          domain=world_room(args.room))  # fmt: skip
         evaluations[split] = result.to_dict()
-        save_eval(result, run_dir / f"bench-eval-{split}.json")  # every episode, for failure analysis
+        in_room = "" if args.room == "training" else f"-{args.room}"
+        # every episode, for failure analysis
+        save_eval(result, run_dir / f"bench-eval-{split}{in_room}.json")
         if understood is not None:
             evaluations[split]["by_goal_understanding"] = success_by_understanding(understood[split], result)
     plot_run(run_dir)
@@ -261,6 +272,7 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         "sounds": sounds,
         "method": method,
         "tag": args.tag,
+        "evaluation_room": args.room,
         "status": "complete" if complete else "partial",
         "env_steps": summary["env_steps"],
         "target_steps": config.num_updates * config.batch_size,

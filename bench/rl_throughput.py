@@ -57,6 +57,7 @@ def trainer_speed(
 ) -> dict:
     import numpy as np
 
+    from learning.rl.frozen_var import LoadedVar
     from learning.rl.ppo import PPOConfig, PPOTrainer
     from learning.rl.rewards import ClipBank
     from learning.var.model import VAR, VARConfig
@@ -74,10 +75,10 @@ def trainer_speed(
         checkpoint_every=10_000,
     )
     with tempfile.TemporaryDirectory() as run_dir:
-        trainer = PPOTrainer(config, Path(run_dir), var, goals)
+        trainer = PPOTrainer(config, Path(run_dir), LoadedVar.in_memory(var), goals)
         try:
             trainer.start()
-            trainer._reset_envs()
+            trainer.reset_envs()
             trainer.run_one_update()  # warm-up: first allocations, first episodes
             from learning.rl.ppo import Timings
 
@@ -94,7 +95,7 @@ def trainer_speed(
         "seconds_per_update": elapsed / updates,
         "batch": config.batch_size,
         "time_shares": trainer.timings.shares(),
-        "peak_memory_mb": trainer.peak_memory_bytes / 2**20,
+        "peak_memory_mb": trainer.memory.peak_mb,
     }
 
 

@@ -53,6 +53,7 @@ def train(
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
     from core.paths import data_dir
     from learning.rl.baselines import METHODS, method_config, needs_var
+    from learning.rl.frozen_var import load_frozen_var
     from learning.rl.run import train_run
 
     if method not in METHODS:
@@ -61,8 +62,12 @@ def train(
         method = "var-current-sound" if method == "var" else method
     if needs_var(method) and var is None:
         _fail(f"method {method} needs a VAR checkpoint: pass --var PATH (train one with `varbot var train`)")
+    try:
+        frozen = load_frozen_var(var)  # read once: its image size here, the model and its labels for the run
+    except (ValueError, FileNotFoundError) as error:
+        _fail(str(error))
     if image_size is None:
-        image_size = _var_image_size(var) if var is not None else 96
+        image_size = frozen.image_size if frozen is not None else 96
     config = method_config(
         method,
         world=world,
@@ -81,7 +86,7 @@ def train(
         if init_encoders is not None:
             config = replace(config, init_encoders=str(init_encoders))
         config.validate()
-        summary = train_run(config, run_dir, var if needs_var(method) else None, resume=resume)
+        summary = train_run(config, run_dir, frozen if needs_var(method) else None, resume=resume)
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         _fail(str(error))
     typer.echo(json.dumps(summary, indent=2))
@@ -152,6 +157,9 @@ def evaluate_command(
     ] = None,
     episodes_per_intent: int = 50,
     seed: int = 12345,
+    room: Annotated[
+        str, typer.Option(help="training, unseen_room or lamplit_room (core.rooms), or randomised")
+    ] = "training",
     gif: Annotated[Path | None, typer.Option(help="Write a GIF of the first episodes here.")] = None,
     out: Annotated[
         Path | None, typer.Option(help="JSON result (default: <run dir>/eval-<split>.json).")
@@ -161,10 +169,11 @@ def evaluate_command(
     from rich.console import Console
     from rich.table import Table
 
+    from core.rooms import world_room
     from learning.rl.evaluate import evaluate, save_eval
+    from learning.rl.frozen_var import load_frozen_var
     from learning.rl.ppo import PPOConfig, load_policy
     from learning.rl.rewards import corpus_bank
-    from learning.rl.run import load_frozen_var
 
     try:
         model, payload = load_policy(policy)
@@ -172,20 +181,21 @@ def evaluate_command(
         sounds = sounds or config.sounds
         split = split or _first_unheard_split(sounds)
         var_path = var or (payload.get("var_path") if model.config.goal_encoder == "var" else None)
-        frozen = load_frozen_var(var_path)
+        loaded = load_frozen_var(var_path)
+        frozen = loaded.model if loaded is not None else None
         goals = corpus_bank(sounds, split, front_end=frozen.front_end if frozen is not None else "mfcc")
         if frozen is not None:
             goals.embed(frozen)
         result = evaluate(
             model, frozen, goals, config.world, config.image_size, split=split,
             episodes_per_intent=episodes_per_intent, seed=seed, success_rule=config.success_rule,
-            max_steps=config.max_episode_steps, gif_path=gif,
+            max_steps=config.max_episode_steps, domain=world_room(room), gif_path=gif,
         )  # fmt: skip
     except (ValueError, FileNotFoundError) as error:
         _fail(str(error))
-    out = out or policy.parent / f"eval-{split}.json"
+    out = out or policy.parent / (f"eval-{split}.json" if room == "training" else f"eval-{split}-{room}.json")
     save_eval(result, out)
-    table = Table(title=f"{config.world} / {sounds} / {split}: {result.success_rate:.1%} success")
+    table = Table(title=f"{config.world} / {sounds} / {split} / {room}: {result.success_rate:.1%} success")
     table.add_column("intent")
     table.add_column("episodes", justify="right")
     table.add_column("success", justify="right")
@@ -218,12 +228,6 @@ def plot(
     if len(run_dirs) > 1 or out is not None:
         target = out or Path("success_vs_steps.png")
         typer.echo(f"wrote {plot_success_curves({d.name: success_curve(d) for d in run_dirs}, target)}")
-
-
-def _var_image_size(path: Path) -> int:
-    from learning.var.checkpoint import read_checkpoint
-
-    return int(read_checkpoint(path)["config"]["image_size"])
 
 
 def _first_unheard_split(sounds: str) -> str:

@@ -26,6 +26,8 @@ from torch import nn
 from torch.distributions import Normal
 from torch.nn import functional as F
 
+from learning.rl.envs import NO_SOUND
+
 GoalEncoder = Literal["var", "learned"]
 MFCC_SHAPE = (100, 40)
 GOAL_FEATURES = 64  # what the goal MLP (VAR) or the goal CNN (baselines) hands to the heads
@@ -44,10 +46,10 @@ class PolicyConfig:
     action_dim: int = 2
     num_intents: int = 4  # only used by the auxiliary heads (RSI baseline)
     aux_heads: bool = False
-    # Newer options. These defaults are what checkpoints saved before the options existed were trained with
-    # (`learning.rl.ppo.LEGACY_DEFAULTS` reads them from here); new runs get theirs from `PPOConfig`.
-    goal_fusion: GoalFusion = "core"
-    bounded_mean: bool = False  # tanh on the action mean
+    # The network's defaults live here only (`PPOConfig` takes its own from them). Checkpoints saved before an
+    # option existed load with the value they were trained with (`learning.rl.checkpoints`).
+    goal_fusion: GoalFusion = "image"
+    bounded_mean: bool = True  # tanh on the action mean
     goal_match: bool = False  # also give the fusion f_I(I_t)·f_S(S_goal): the reward it is earning now
 
     def to_dict(self) -> dict:
@@ -203,6 +205,15 @@ class Policy(nn.Module):
             # Kuka runs): every sample then clips to the same action and the noise explores nothing.
             mean = torch.tanh(mean)
         return mean, self.critic(joined).squeeze(-1)
+
+    def auxiliary_loss(
+        self, inputs: torch.Tensor, goal_features: torch.Tensor, heard: torch.Tensor, intent: torch.Tensor
+    ) -> torch.Tensor:
+        """RSI-style: classify what is in view (intents + "nothing") and which intent the goal is."""
+        view_labels = torch.where(heard == NO_SOUND, self.config.num_intents, heard)
+        view = F.cross_entropy(self.aux_view(inputs.flatten(0, 1)), view_labels.flatten())
+        goal = F.cross_entropy(self.aux_goal(goal_features.flatten(0, 1)), intent.flatten())
+        return view + goal
 
     # -- one environment step (rollout) ----------------------------------------------------------------------
     def step(

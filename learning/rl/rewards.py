@@ -1,16 +1,18 @@
 """Rewards and goals, computed in the learner for all environments at once.
 
-- `var`: the paper's intrinsic reward r_t = f_I(I_{t+1}) · f_S(S_goal) (+ f_S(S_{t+1}) · f_S(S_goal) with the
-  current sound). The image embedding is computed once per step and is both this reward and, one step later,
-  part of the observation, so the trainer calls `intrinsic_reward_from_embeddings` on embeddings it already
-  has.
-- `sparse`: 1 when an episode ends in success (NoAux+SparseR baseline).
-- `shaped`: progress towards the target from simulator ground truth, plus 1 on success (RSI-style baseline).
+A run's reward is one of the `RewardFunction`s below, chosen by `make_reward` from the run's settings:
+- `IntrinsicReward` (`var`): the paper's r_t = f_I(I_{t+1}) · f_S(S_goal). The image embedding is computed
+  once per step and is both this reward and, one step later, part of the observation, so the reward reads
+  embeddings the trainer already has (`intrinsic_reward_from_embeddings`).
+- `IntrinsicRewardWithCurrentSound` (`var` + current sound): adds f_S(S_{t+1}) · f_S(S_goal).
+- `SparseReward` (`sparse`): 1 when an episode ends in success (NoAux+SparseR baseline).
+- `ShapedReward` (`shaped`): progress towards the target from simulator ground truth, plus 1 on success
+  (RSI-style baseline).
 """
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Protocol
 
 import numpy as np
 import torch
@@ -43,6 +45,88 @@ def shaped_reward(
     """Distance decrease in action steps (ground truth, one simulator query per step) plus 1 for success."""
     progress = (distance_before - distance_after) / SHAPED_STEP_M
     return (np.nan_to_num(progress) + sparse_reward(done, final_success)).astype(np.float32)
+
+
+@dataclass
+class StepOutcome:
+    """What one vector step of some environments left behind, as the reward functions read it."""
+
+    image_embedding: torch.Tensor  # f_I after the step (of the final observation where an episode ended)
+    goal_clips: np.ndarray  # index into the goal bank of each environment's goal
+    heard: np.ndarray  # the intent in view after the step (-1: nothing)
+    distance_before: np.ndarray  # ground truth, metres to the target (the shaped baseline only)
+    distance_after: np.ndarray
+    done: np.ndarray  # the episode ended with this step
+    success: np.ndarray  # ... and ended in success
+
+
+class RewardFunction(Protocol):
+    queries_simulator: bool  # every step costs one ground-truth query (counted as a label, as the paper does)
+
+    def __call__(self, step: StepOutcome) -> np.ndarray:
+        """The reward of each environment, float64."""
+        ...
+
+
+class IntrinsicReward:
+    queries_simulator = False
+
+    def __init__(self, goals: "ClipBank") -> None:
+        if goals.embeddings is None:
+            raise ValueError("embed the goal clips with the VAR first")
+        self.goals = goals
+
+    def goal_embeddings(self, step: StepOutcome) -> torch.Tensor:
+        return self.goals.embeddings[torch.from_numpy(step.goal_clips)]
+
+    def __call__(self, step: StepOutcome) -> np.ndarray:
+        reward = intrinsic_reward_from_embeddings(step.image_embedding, self.goal_embeddings(step))
+        return reward.numpy().astype(np.float64)
+
+
+class IntrinsicRewardWithCurrentSound(IntrinsicReward):
+    def __init__(self, goals: "ClipBank", current: "CurrentSound", rng: np.random.Generator) -> None:
+        super().__init__(goals)
+        self.current, self.rng = current, rng
+
+    def __call__(self, step: StepOutcome) -> np.ndarray:
+        heard_now = self.current.embeddings(step.heard, self.rng)
+        reward = intrinsic_reward_from_embeddings(step.image_embedding, self.goal_embeddings(step), heard_now)
+        return reward.numpy().astype(np.float64)
+
+
+class SparseReward:
+    queries_simulator = True
+
+    def __call__(self, step: StepOutcome) -> np.ndarray:
+        return sparse_reward(step.done, step.success).astype(np.float64)
+
+
+class ShapedReward:
+    queries_simulator = True
+
+    def __call__(self, step: StepOutcome) -> np.ndarray:
+        return shaped_reward(step.distance_before, step.distance_after, step.done, step.success).astype(
+            np.float64
+        )
+
+
+def make_reward(
+    kind: RewardKind,
+    goals: "ClipBank",
+    var: torch.nn.Module | None = None,
+    current_sounds: "ClipBank | None" = None,
+    rng: np.random.Generator | None = None,
+) -> RewardFunction:
+    """The reward of a run. With `current_sounds` (and the VAR, and the generator that picks which clip of the
+    intent in view is heard) the intrinsic reward adds the current-sound term."""
+    if kind == "sparse":
+        return SparseReward()
+    if kind == "shaped":
+        return ShapedReward()
+    if current_sounds is None:
+        return IntrinsicReward(goals)
+    return IntrinsicRewardWithCurrentSound(goals, CurrentSound.heard_through(var, current_sounds), rng)
 
 
 @dataclass
@@ -134,6 +218,15 @@ class CurrentSound:
             raise ValueError("embed the clip bank with the VAR first")
         self.bank = bank
         self.silence = silence_embedding.reshape(-1)
+
+    @classmethod
+    def heard_through(cls, var: torch.nn.Module, bank: ClipBank) -> "CurrentSound":
+        """The clips and silence as the VAR embeds them."""
+        if bank.embeddings is None:
+            bank.embed(var)
+        with torch.inference_mode():
+            silence = var.encode_silence()
+        return cls(bank, silence)
 
     def embeddings(self, heard: np.ndarray, rng: np.random.Generator) -> torch.Tensor:
         out = self.silence.expand(len(heard), -1).clone()

@@ -11,42 +11,21 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
-import torch
-
+from learning.rl.frozen_var import LoadedVar, load_frozen_var
 from learning.rl.ppo import PPOConfig, PPOTrainer, RolloutStep
 from learning.rl.rewards import ClipBank, corpus_bank
 
-
-def load_frozen_var(path: str | Path | None) -> torch.nn.Module | None:
-    if path is None:
-        return None
-    from learning.var.checkpoint import load_var
-
-    return load_var(path).eval().requires_grad_(False)
+VarSource = str | Path | LoadedVar | None  # a VAR checkpoint's path, or the VAR already loaded from one
 
 
-def var_label_count(var_path: str | Path | None) -> dict[str, int]:
-    """Labels behind a VAR, counted as the paper does: 2 per triplet of the dataset it was trained on."""
-    if var_path is None:
-        return {}
-    from core.paths import data_dir
-    from learning.var.checkpoint import read_checkpoint
-
-    payload = read_checkpoint(var_path)
-    dataset = (payload.get("train_config") or {}).get("dataset")
-    if not dataset:
-        return {}
-    for folder in (Path(dataset), data_dir() / "var" / "datasets" / dataset):
-        meta = folder / "meta.json"
-        if meta.is_file():
-            return {"var_triplet_labels": 2 * int(json.loads(meta.read_text())["count"])}
-    return {}
+def as_loaded_var(var: VarSource) -> LoadedVar | None:
+    return var if isinstance(var, LoadedVar) or var is None else load_frozen_var(var)
 
 
 def make_trainer(
     config: PPOConfig,
     run_dir: Path,
-    var_path: str | Path | None,
+    var_path: VarSource,
     goals: ClipBank | None = None,
     init_policy: Path | None = None,
     resume: bool = False,
@@ -69,23 +48,15 @@ def make_trainer(
         raise FileExistsError(
             f"{run_dir} already holds a run; pass --resume to continue it or choose another --run-dir"
         )
+    var = as_loaded_var(var_path)
     run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.json").write_text(json.dumps({**asdict(config), "var_path": str(var_path)}, indent=2))
-    var = load_frozen_var(var_path)
-    front_end = var.front_end if var is not None else "mfcc"  # goal clips as the VAR's f_S reads them
+    saved_path = str(var.path if var is not None else None)
+    (run_dir / "config.json").write_text(json.dumps({**asdict(config), "var_path": saved_path}, indent=2))
+    front_end = var.model.front_end if var is not None else "mfcc"  # goal clips as the VAR's f_S reads them
     if goals is None:
         goals = corpus_bank(config.sounds, config.goal_split, front_end=front_end)
     current = corpus_bank(config.sounds, "train", front_end=front_end) if config.current_sound else None
-    trainer = PPOTrainer(
-        config,
-        run_dir,
-        var,
-        goals,
-        current_sounds=current,
-        init_policy=init_policy,
-        var_path=None if var_path is None else str(var_path),
-        label_counts=var_label_count(var_path) if config.goal_encoder == "var" else {},
-    )
+    trainer = PPOTrainer(config, run_dir, var, goals, current_sounds=current, init_policy=init_policy)
     trainer.start()
     if resume and checkpoint.exists():
         trainer.load_checkpoint(checkpoint)
@@ -95,7 +66,7 @@ def make_trainer(
 def train_run(
     config: PPOConfig,
     run_dir: Path,
-    var_path: str | Path | None,
+    var_path: VarSource,
     goals: ClipBank | None = None,
     init_policy: Path | None = None,
     resume: bool = False,

@@ -1,9 +1,13 @@
 """The recurrent policy: its state is cleared where an episode starts; the update sees what rollouts saw; the
 goal meets the current view (new policies) or only the recurrent core (policies saved before that)."""
 
+from dataclasses import fields
+from pathlib import Path
+
 import pytest
 import torch
 
+from learning.rl.checkpoints import CHECKPOINT_KIND, load_policy
 from learning.rl.policy import Policy, PolicyConfig, downsample_images
 from learning.rl.ppo import PPOConfig
 
@@ -122,12 +126,13 @@ def test_new_policies_fuse_the_goal_with_the_current_view() -> None:
     assert torch.allclose(late_mean[0], late_mean[1])  # "core": only h_t carries the view
 
 
-def test_a_policy_saved_before_goal_fusion_and_bounded_means_loads_as_it_was_trained() -> None:
+def test_a_policy_saved_before_goal_fusion_and_bounded_means_loads_as_it_was_trained(tmp_path: Path) -> None:
     old = make_policy("core")
     newer_fields = ("goal_fusion", "bounded_mean")
     saved_config = {k: v for k, v in old.config.to_dict().items() if k not in newer_fields}
-    loaded = Policy(PolicyConfig(**saved_config))
-    loaded.load_state_dict(old.state_dict())  # strict: the same layers, no fusion MLP
+    path = tmp_path / "old.pt"
+    torch.save({"kind": CHECKPOINT_KIND, "policy_config": saved_config, "policy": old.state_dict()}, path)
+    loaded, _ = load_policy(path)  # strict: the same layers, no fusion MLP
     assert loaded.config.goal_fusion == "core"
     assert loaded.config.bounded_mean is False
     legacy_run = PPOConfig.from_dict({"world": "kuka"})  # its run settings, likewise
@@ -165,3 +170,13 @@ def test_with_goal_match_the_fusion_sees_how_well_the_view_matches_the_goal() ->
     assert not torch.allclose(on_goal, opposite)  # only the match term differs between the two calls
     with pytest.raises(ValueError, match="goal_match"):
         Policy(PolicyConfig(**shape, goal_fusion="core", goal_match=True))
+
+
+def test_a_policy_config_built_directly_is_the_network_a_new_run_builds() -> None:
+    direct = PolicyConfig(image_size=96, state_dim=2)
+    run = PPOConfig()
+    network_options = {f.name for f in fields(PolicyConfig)} & {f.name for f in fields(PPOConfig)}
+    assert network_options >= {"goal_fusion", "bounded_mean", "goal_match", "policy_image_size"}
+    for name in sorted(network_options - {"image_size"}):  # the rendered size is the VAR's, not the net's
+        assert getattr(direct, name) == getattr(run, name), name
+    assert (direct.goal_fusion, direct.bounded_mean) == ("image", True)

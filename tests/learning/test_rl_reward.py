@@ -1,4 +1,5 @@
-"""The rewards of the RL stage, checked against values worked out by hand."""
+"""The rewards of the RL stage, checked against values worked out by hand: the functions, the reward
+strategies a run is given, and the intrinsic reward of a real VAR."""
 
 import math
 
@@ -9,12 +10,17 @@ import torch
 from learning.rl.rewards import (
     ClipBank,
     CurrentSound,
+    IntrinsicReward,
+    IntrinsicRewardWithCurrentSound,
+    ShapedReward,
+    SparseReward,
+    StepOutcome,
     intrinsic_reward_from_embeddings,
+    make_reward,
     shaped_reward,
     sparse_reward,
 )
 from learning.var.model import VAR, VARConfig
-from learning.var.reward import intrinsic_reward
 
 
 def unit(*values: float) -> list[float]:
@@ -37,7 +43,7 @@ def test_current_sound_adds_its_dot_product_with_the_goal() -> None:
     assert reward.tolist() == pytest.approx([1.0 + 0.0, 0.6 + 0.8])
 
 
-def test_trainer_reward_matches_the_var_reward_helper_on_a_real_var() -> None:
+def test_on_a_real_var_the_reward_is_the_cosine_of_image_and_goal_embeddings() -> None:
     torch.manual_seed(0)
     var = VAR(VARConfig(image_size=32)).eval()
     images = torch.randint(0, 256, (5, 32, 32, 3), dtype=torch.uint8)
@@ -45,9 +51,98 @@ def test_trainer_reward_matches_the_var_reward_helper_on_a_real_var() -> None:
         goal = var.encode_sound(torch.randn(5, 100, 40))
         embedded = var.encode_image(images)
     ours = intrinsic_reward_from_embeddings(embedded, goal)
-    theirs = intrinsic_reward(var, images, goal)
-    assert torch.allclose(ours, theirs, atol=1e-6)
+    rows = zip(embedded.tolist(), goal.tolist(), strict=True)
+    by_hand = [sum(i * g for i, g in zip(a, b, strict=True)) for a, b in rows]
+    assert ours.tolist() == pytest.approx(by_hand, abs=1e-6)
     assert ours.abs().max() <= 1.0 + 1e-6  # unit vectors: the reward is a cosine
+
+
+def test_a_zero_current_sound_row_adds_nothing() -> None:
+    image = torch.tensor([[0.6, 0.8, 0.0], [0.6, 0.8, 0.0]])
+    goal = torch.tensor([[0.0, 1.0, 0.0], [0.0, 1.0, 0.0]])
+    current = torch.tensor([[0.0, 0.5, 0.5], [0.0, 0.0, 0.0]])  # heard something at step 0, nothing at step 1
+    base = intrinsic_reward_from_embeddings(image, goal)
+    with_sound = intrinsic_reward_from_embeddings(image, goal, current)
+    torch.testing.assert_close(with_sound - base, torch.tensor([0.5, 0.0]))
+
+
+def test_reward_of_a_real_image_encoder_pinned_to_a_known_direction() -> None:
+    torch.manual_seed(0)
+    var = VAR(VARConfig(image_size=32)).eval()
+    last = var.image_encoder.head[-1]
+    with torch.no_grad():
+        last.weight.zero_()
+        last.bias.copy_(torch.tensor([3.0, 4.0, 0.0]))  # every image embeds to (0.6, 0.8, 0)
+        embedded = var.encode_image(torch.randint(0, 256, (3, 32, 32, 3), dtype=torch.uint8))
+    goals = torch.tensor([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [-0.6, -0.8, 0.0]])
+    torch.testing.assert_close(
+        intrinsic_reward_from_embeddings(embedded, goals), torch.tensor([0.8, 0.6, -1.0])
+    )
+    goal, current = torch.tensor([[0.0, 0.6, 0.8]] * 3), torch.tensor([[0.0, 0.0, 1.0]] * 3)
+    torch.testing.assert_close(
+        intrinsic_reward_from_embeddings(embedded, goal, current), torch.tensor([1.28, 1.28, 1.28])
+    )
+
+
+def outcome(**fields: object) -> StepOutcome:
+    """Three environments after a step; each test overrides what its reward reads."""
+    settings: dict = {
+        "image_embedding": torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.6, 0.8, 0.0]]),
+        "goal_clips": np.array([0, 1, 1]),
+        "heard": np.array([-1, 0, 1]),
+        "distance_before": np.array([0.10, 0.10, 0.05]),
+        "distance_after": np.array([0.08, 0.13, 0.05]),
+        "done": np.array([False, False, True]),
+        "success": np.array([False, False, True]),
+    }
+    return StepOutcome(**{**settings, **fields})
+
+
+def embedded_bank(embeddings: list[list[float]], intents: list[int]) -> ClipBank:
+    bank = ClipBank(np.zeros((len(intents), 100, 40), np.float32), np.array(intents))
+    bank.embeddings = torch.tensor(embeddings)
+    return bank
+
+
+GOALS = [[1.0, 0.0, 0.0], [0.0, 0.6, 0.8]]  # clip 0 (intent 0), clip 1 (intent 1)
+
+
+def test_the_intrinsic_reward_strategy_pairs_each_image_with_its_own_goal() -> None:
+    reward = IntrinsicReward(embedded_bank(GOALS, [0, 1]))
+    # env 0: (1,0,0)·(1,0,0); env 1: (0,1,0)·(0,.6,.8); env 2: (.6,.8,0)·(0,.6,.8)
+    assert reward(outcome()).tolist() == pytest.approx([1.0, 0.6, 0.48])
+    assert reward(outcome()).dtype == np.float64 and not reward.queries_simulator
+
+
+def test_the_current_sound_strategy_adds_what_is_heard_now_against_the_goal() -> None:
+    goals = embedded_bank(GOALS, [0, 1])
+    heard_clips = embedded_bank([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]], [0, 1])  # one clip per intent
+    silence = torch.tensor([0.6, 0.0, 0.8])
+    reward = IntrinsicRewardWithCurrentSound(
+        goals, CurrentSound(heard_clips, silence), np.random.default_rng(0)
+    )
+    # env 0 hears nothing: + silence·(1,0,0) = 0.6; env 1 hears 0: + (0,0,1)·(0,.6,.8) = 0.8;
+    # env 2 hears 1: + (0,1,0)·(0,.6,.8) = 0.6
+    assert reward(outcome()).tolist() == pytest.approx([1.0 + 0.6, 0.6 + 0.8, 0.48 + 0.6])
+
+
+def test_the_extrinsic_strategies_read_the_simulator_and_count_its_queries() -> None:
+    assert SparseReward()(outcome()).tolist() == [0.0, 0.0, 1.0]
+    # 2 cm closer = one step; 3 cm further = -1.5 steps; ended on target = +1
+    assert ShapedReward()(outcome()).tolist() == pytest.approx([1.0, -1.5, 1.0])
+    assert SparseReward.queries_simulator and ShapedReward.queries_simulator
+
+
+def test_a_runs_settings_choose_its_reward() -> None:
+    goals = embedded_bank(GOALS, [0, 1])
+    var = VAR(VARConfig(image_size=32)).eval()
+    heard_clips = ClipBank(np.zeros((2, 100, 40), np.float32), np.array([0, 1]))
+    assert type(make_reward("var", goals)) is IntrinsicReward
+    with_sound = make_reward("var", goals, var, heard_clips, np.random.default_rng(0))
+    assert type(with_sound) is IntrinsicRewardWithCurrentSound
+    assert heard_clips.embeddings is not None  # the heard clips are embedded once, by the run's VAR
+    assert type(make_reward("sparse", goals)) is SparseReward
+    assert type(make_reward("shaped", goals)) is ShapedReward
 
 
 def test_sparse_reward_is_one_only_when_an_episode_ends_in_success() -> None:

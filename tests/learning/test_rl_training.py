@@ -13,18 +13,14 @@ import torch
 from rl_helpers import IMAGE, tiny_config
 
 from learning.rl.baselines import method_config
+from learning.rl.checkpoints import FORMAT_VERSION
+from learning.rl.curriculum import curriculum_weights
 from learning.rl.envs import make_env_fn, world_id
 from learning.rl.evaluate import deal, episode_schedule, evaluate
-from learning.rl.ppo import (
-    EpisodeStats,
-    PPOConfig,
-    PPOTrainer,
-    Rollout,
-    RolloutStep,
-    curriculum_weights,
-    load_policy,
-)
+from learning.rl.frozen_var import load_frozen_var
+from learning.rl.ppo import PPOConfig, PPOTrainer, Rollout, RolloutStep, load_policy
 from learning.rl.rewards import ClipBank, clip_bank_from_paths
+from learning.rl.stats import EpisodeStats
 from learning.var.checkpoint import save_var
 from learning.var.model import VAR, VARConfig
 
@@ -53,11 +49,9 @@ def var_checkpoint(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 def make(config: PPOConfig, run_dir: Path, var_path: Path, clips: ClipBank) -> PPOTrainer:
-    from learning.var.checkpoint import load_var
-
     bank = ClipBank(clips.features, clips.intents)
     heard_now = ClipBank(clips.features, clips.intents) if config.current_sound else None
-    trainer = PPOTrainer(config, run_dir, load_var(var_path), bank, current_sounds=heard_now)
+    trainer = PPOTrainer(config, run_dir, load_frozen_var(var_path), bank, current_sounds=heard_now)
     trainer.start()
     return trainer
 
@@ -67,14 +61,14 @@ def test_update_recomputes_the_rollout_log_probabilities_across_episode_ends(
 ) -> None:
     trainer = make(tiny_config(current_sound=True), tmp_path / "run", var_checkpoint, goal_clips)
     try:
-        trainer._reset_envs()
+        trainer.reset_envs()
         buf, finished = trainer.collect_rollout()
     finally:
         trainer.close()
     assert len(finished) == 4  # 12 steps of 5-step episodes in 2 envs: two ends each
     assert buf.episode_start[[0, 5, 10]].eq(1).all() and buf.episode_start.sum() == 6
     with torch.no_grad():
-        goal = trainer._minibatch_goal_features(buf.goal)
+        goal = trainer.goal_source.features(trainer.policy, buf.goal)
         mean, value, _ = trainer.policy.evaluate_sequences(
             buf.images, buf.var_embedding, buf.state, goal, buf.initial_hidden, buf.episode_start
         )
@@ -100,6 +94,8 @@ def test_resuming_from_a_checkpoint_gives_identical_next_updates(
         straight.train(progress=False)
     finally:
         straight.close()
+    saved = torch.load(tmp_path / "straight" / "checkpoint_000001.pt", map_location="cpu", weights_only=False)
+    assert saved["format_version"] == FORMAT_VERSION
     resumed_dir = tmp_path / "resumed"
     resumed_dir.mkdir()
     shutil.copy(tmp_path / "straight" / "checkpoint_000001.pt", resumed_dir / "checkpoint.pt")
@@ -137,10 +133,10 @@ def one_rollout(
     """One rollout, and env 0's pose after it, asked of its worker directly."""
     trainer = make(config, folder, var, bank)
     try:
-        trainer._reset_envs()
+        trainer.reset_envs()
         trainer.watch(watch)
         buf, _finished = trainer.collect_rollout()
-        return buf, trainer.vector_envs[0].call("mirror_state")[0]
+        return buf, trainer.envs.vector_envs[0].call("mirror_state")[0]
     finally:
         trainer.close()
 
@@ -293,13 +289,13 @@ def test_a_run_can_be_restricted_to_some_targets(
 ) -> None:
     trainer = make(tiny_config(target_intents=[0]), tmp_path / "zero", var_checkpoint, goal_clips)
     try:
-        trainer._reset_envs()
+        trainer.reset_envs()
         buf, finished = trainer.collect_rollout()
     finally:
         trainer.close()
-    assert trainer.intent_weights == [1.0, 0.0, 0.0, 0.0]
+    assert trainer.curriculum.weights == [1.0, 0.0, 0.0, 0.0]
     assert len(finished) >= 2 and set(buf.intent.flatten().tolist()) == {0}
-    goals = trainer.goals.intents[np.asarray(trainer.goal_clip)]
+    goals = trainer.goals.intents[np.asarray(trainer.episode_goals.clip)]
     assert set(goals.tolist()) == {0}  # the goal clips follow the world's target
     with pytest.raises(ValueError, match=r"target_intents \[4\] are not targets of the kuka world \(0..3\)"):
         make(tiny_config(target_intents=[0, 4]), tmp_path / "four", var_checkpoint, goal_clips)
@@ -378,10 +374,10 @@ def test_the_trainers_curriculum_reaches_its_workers(
         for intent, episode_return in [(0, 5.0), (1, 5.0), (2, -5.0), (3, 4.0)]:
             trainer.stats.intents.append(intent)
             trainer.stats.returns.append(episode_return)
-        trainer._reset_envs()
+        trainer.reset_envs()
         buf, finished = trainer.collect_rollout()
     finally:
         trainer.close()
     # all of the share goes to the gaps: 10 of 11 to target 2, 1 of 11 to target 3
-    assert trainer.intent_weights == pytest.approx([0.0, 0.0, 10 / 11, 1 / 11])
+    assert trainer.curriculum.weights == pytest.approx([0.0, 0.0, 10 / 11, 1 / 11])
     assert len(finished) >= 2 and set(buf.intent.flatten().tolist()) <= {2, 3}

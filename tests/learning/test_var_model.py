@@ -1,4 +1,5 @@
-"""The VAR's encoders, checkpoints and intrinsic reward: shapes, normalisation, refusals, hand-made values."""
+"""The VAR's encoders and checkpoints: shapes, normalisation, refusals, hand-made values (the intrinsic
+reward is tested with the RL rewards, tests/learning/test_rl_reward.py)."""
 
 import numpy as np
 import pytest
@@ -8,7 +9,6 @@ from learning.var.checkpoint import CheckpointMismatchError, load_var, read_chec
 from learning.var.dataset import SILENCE_ID, SoundBank, triplet_sound_ids
 from learning.var.loss import triplet_correct, triplet_loss
 from learning.var.model import VAR, VARConfig
-from learning.var.reward import intrinsic_reward
 
 SMALL = VARConfig(image_size=32)
 
@@ -131,46 +131,3 @@ def test_a_file_that_is_not_a_var_checkpoint_is_refused(tmp_path) -> None:
         load_var(tmp_path / "other.pt")
     with pytest.raises(FileNotFoundError, match="varbot var train"):
         load_var(tmp_path / "missing.pt")
-
-
-def test_reward_is_the_dot_product_of_image_and_goal_embeddings(var: VAR) -> None:
-    images = torch.randint(0, 256, (4, 32, 32, 3), dtype=torch.uint8)
-    embedded = var.encode_image(images)
-    goal = torch.tensor([0.6, 0.0, 0.8])
-    expected = [
-        float(sum(e * g for e, g in zip(row, goal.tolist(), strict=True))) for row in embedded.tolist()
-    ]
-    torch.testing.assert_close(intrinsic_reward(var, images, goal), torch.tensor(expected))
-
-
-def test_reward_adds_the_current_sound_term_and_zero_rows_add_nothing(var: VAR) -> None:
-    images = torch.randint(0, 256, (2, 32, 32, 3), dtype=torch.uint8)
-    goal = torch.tensor([0.0, 1.0, 0.0])
-    current = torch.tensor([[0.0, 0.5, 0.5], [0.0, 0.0, 0.0]])  # heard something at step 0, nothing at step 1
-    base = intrinsic_reward(var, images, goal)
-    with_sound = intrinsic_reward(var, images, goal, current)
-    torch.testing.assert_close(with_sound - base, torch.tensor([0.5, 0.0]))
-
-
-def test_reward_needs_a_frozen_var_and_matching_batch(var: VAR) -> None:
-    images = torch.zeros(2, 32, 32, 3, dtype=torch.uint8)
-    with pytest.raises(ValueError, match="B = 2"):
-        intrinsic_reward(var, images, torch.zeros(3, 3))
-    var.train()
-    with pytest.raises(ValueError, match="frozen"):
-        intrinsic_reward(var, images, torch.zeros(3))
-
-
-def test_reward_of_an_image_encoder_pinned_to_a_known_direction(var: VAR) -> None:
-    last = var.image_encoder.head[-1]
-    with torch.no_grad():
-        last.weight.zero_()
-        last.bias.copy_(torch.tensor([3.0, 4.0, 0.0]))  # every image embeds to (0.6, 0.8, 0)
-    images = torch.randint(0, 256, (3, 32, 32, 3), dtype=torch.uint8)
-    goals = torch.tensor([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [-0.6, -0.8, 0.0]])
-    torch.testing.assert_close(intrinsic_reward(var, images, goals), torch.tensor([0.8, 0.6, -1.0]))
-    current = torch.tensor([0.0, 0.0, 1.0])
-    torch.testing.assert_close(
-        intrinsic_reward(var, images, torch.tensor([0.0, 0.6, 0.8]), current),
-        torch.tensor([1.28, 1.28, 1.28]),
-    )

@@ -1,0 +1,102 @@
+"""The training environments as groups of worker processes that step in turn.
+
+While one group's workers step, the learner embeds, rewards and acts for the group that just returned, so
+workers and learner wait less for each other (one group: plain lockstep). Every environment still acts with
+exactly the current policy. Environments reset in the same step as they end (gymnasium's SAME_STEP
+autoreset): `ended_view` puts the final observation back where the reward needs it.
+"""
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import psutil
+from gymnasium.vector import AsyncVectorEnv
+
+from learning.rl.envs import make_vector_env, world_id
+
+RESET_INFO = ("intent", "heard", "distance")
+
+
+class EnvGroups:
+    def __init__(
+        self,
+        world: str,
+        num_envs: int,
+        groups: int,
+        image_size: int,
+        success_rule: str | None,
+        max_steps: int | None,
+        context: str,
+        domain: Any = None,
+    ) -> None:
+        size = num_envs // groups
+        self.num_envs = num_envs
+        self.slices = [slice(g * size, (g + 1) * size) for g in range(groups)]
+        self.vector_envs: list[AsyncVectorEnv] = [
+            make_vector_env(
+                world_id(world), size, image_size, success_rule, max_steps, domain=domain, context=context
+            )
+            for _ in self.slices
+        ]
+
+    def __iter__(self) -> Iterator[tuple[AsyncVectorEnv, slice]]:
+        return iter(zip(self.vector_envs, self.slices, strict=True))
+
+    @property
+    def state_dim(self) -> int:
+        return int(self.vector_envs[0].single_observation_space["state"].shape[0])
+
+    @property
+    def num_intents(self) -> int:
+        return int(self.vector_envs[0].get_attr("num_intents")[0])
+
+    def reset(self, seeds: list[int]) -> tuple[dict[str, np.ndarray], dict[str, np.ndarray]]:
+        """Reset every environment with its seed; observations and `RESET_INFO` of all of them."""
+        results = [envs.reset(seed=seeds[group]) for envs, group in self]
+        obs = {key: np.concatenate([o[key] for o, _ in results]) for key in ("image", "state")}
+        info = {key: np.concatenate([i[key] for _, i in results]) for key in RESET_INFO}
+        return obs, info
+
+    def set_attr(self, name: str, values: list[Any]) -> None:
+        """One value per environment, each sent to its worker (used at the worker's next reset or step)."""
+        for envs, group in self:
+            envs.set_attr(name, values[group])
+
+    def worker_processes(self) -> list[psutil.Process]:
+        return [psutil.Process(p.pid) for envs in self.vector_envs for p in envs.processes if p.is_alive()]
+
+    def close(self) -> None:
+        for envs in self.vector_envs:
+            envs.close()
+        self.vector_envs = []
+
+
+@dataclass
+class EndedView:
+    """A group's step as the reward sees it: where an episode ended, its final observation, not the reset."""
+
+    images: np.ndarray
+    state: np.ndarray  # float32
+    heard: np.ndarray
+    distance: np.ndarray
+    success: np.ndarray  # the episode ended in success
+
+
+def ended_view(obs: dict, info: dict, done: np.ndarray) -> EndedView:
+    done_envs = np.flatnonzero(done)
+    images, heard, distance = obs["image"], np.asarray(info["heard"]), np.asarray(info["distance"])
+    state = np.asarray(obs["state"], dtype=np.float32)
+    success = np.zeros(len(done), dtype=bool)
+    if len(done_envs):
+        final = info["final_info"]
+        images, state = images.copy(), state.copy()
+        heard, distance = heard.copy(), distance.copy()
+        for e in done_envs:  # only the few environments that just ended
+            images[e] = info["final_obs"][e]["image"]
+            state[e] = info["final_obs"][e]["state"]
+        heard[done_envs] = np.asarray(final["heard"])[done_envs]
+        distance[done_envs] = np.asarray(final["distance"])[done_envs]
+        success = np.asarray(final["success"], dtype=bool) & done
+    return EndedView(images, state, heard, distance, success)
