@@ -13,7 +13,6 @@ from sqlalchemy.orm import Session
 from backend import models
 from backend.errors import Conflict, Forbidden, NotFound
 from backend.schemas import LabelCreate
-from backend.services.pair_leases import pair_leases
 
 
 def get_label(session: Session, household_id: int, label_id: int) -> models.Label:
@@ -131,7 +130,8 @@ def create_label(session: Session, user_id: int, household_id: int, body: LabelC
         },
     )
     session.commit()
-    pair_leases.release((household_id, body.snapshot_id, body.clip_id))
+    # The pair's lease is kept until it runs out: a member whose next-pair query read the candidates before
+    # this commit could otherwise still claim it, and answer it second (409).
     return {"id": label_id, **label}
 
 

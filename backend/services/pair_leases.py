@@ -5,6 +5,9 @@ A lease is claimed atomically (taken unless another member holds it) in Redis, w
 shares: two requests, in one process or in two, can never both be handed the same pair while the lease
 runs. While Redis cannot be reached the leases live in this process (they then hold within it only); a
 second answer to one pair is refused with 409 either way, so a lease never decides what is stored.
+
+An answered pair keeps its lease until it runs out (labels.create_label does not release it): a member whose
+next-pair query read the candidates just before the answer was committed would otherwise claim it.
 """
 
 import logging

@@ -101,3 +101,14 @@ def test_leases_hold_within_the_process_while_redis_is_away(member, admin, pairs
         ).status_code
         == 201
     )
+
+
+def test_an_answered_pair_stays_held_for_whoever_looked_before_the_answer(
+    member, pairs, other_process
+) -> None:
+    """Another member's next-pair query may have read the candidates just before this answer was committed:
+    the lease, not the answer, must keep them from claiming the pair (and answering it second, 409)."""
+    pair = asked(member)
+    body = {"snapshot_id": pair[1], "clip_id": pair[2], "verdict": "is"}
+    assert member.client.post("/api/v1/labels", json=body).status_code == 201
+    assert other_process([pair]) == [False]
