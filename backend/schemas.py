@@ -263,6 +263,13 @@ class RunParams(BaseModel):
     eval_episodes: int = Field(ge=1, le=2000)
     held_out_fraction: float = Field(ge=0.0, le=0.5)
     seed: int = Field(ge=0, le=2**31 - 1)
+    replay_fraction: float = Field(
+        default=0.25,
+        ge=0.0,
+        le=0.9,
+        description="share of the VAR fine-tune's training triplets replayed from the simulated training "
+        "room with the base corpus's clips, so that it keeps what it knew (0: none)",
+    )
 
 
 Preset = Literal["quick", "standard", "thorough"]

@@ -22,6 +22,7 @@ TINY = {
     "policy_steps": 48,
     "eval_episodes": 4,
     "held_out_fraction": 0.25,
+    "replay_fraction": 0.0,  # the tiny VAR learnt from no corpus: nothing to replay
 }
 
 

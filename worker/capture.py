@@ -39,7 +39,7 @@ def capture_views(robot_id: int, household_id: int, count: int, task_id: str | N
                 session,
                 blobs,
                 robot,
-                _png(image),
+                png(image),
                 [float(v) for v in np.asarray(state).ravel()],
                 "sim-capture",
                 meta={"world": world, "seed": seed, "index": index, "sim_heard": heard, "task_id": task_id},
@@ -55,7 +55,7 @@ def _base_image_size(world: str) -> int:
         return 96
 
 
-def _png(image: np.ndarray) -> bytes:
+def png(image: np.ndarray) -> bytes:
     out = io.BytesIO()
     Image.fromarray(np.asarray(image, dtype=np.uint8)).save(out, format="PNG")
     return out.getvalue()

@@ -19,18 +19,23 @@ from worker.run_context import RunContext, materialise, materialise_optional
 from worker.var_stage import Diverged
 
 EVAL_NUM_ENVS = int(os.environ.get("VARBOT_EVAL_NUM_ENVS", 4))
+DEFAULT_REPLAY_FRACTION = 0.25  # of the fine-tune's training triplets, as `varbot var finetune` mixes
 
 
 def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
+    """The household's triplets plus a replay of the simulated training room (`worker.replay`)."""
+    from worker.replay import with_replay
     from worker.var_stage import finetune_var
 
     params = context.params
+    fraction = float(params.get("replay_fraction", DEFAULT_REPLAY_FRACTION))
+    data, replayed = with_replay(context.data, context.parent_var, context.world, fraction, params["seed"])
 
     def on_epoch(fraction: float, record: dict[str, Any]) -> bool:
         return progress.update(fraction, {"var": record}, point=record)
 
     result = finetune_var(
-        context.data,
+        data,
         context.parent_var,
         context.folder / "var",
         epochs=params["var_epochs"],
@@ -39,7 +44,8 @@ def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
         seed=params["seed"],
         on_epoch=on_epoch,
     )
-    return {k: str(v) if isinstance(v, Path) else v for k, v in asdict(result).items()}
+    done = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(result).items()}
+    return {**done, "train_triplets": len(context.data.train_triplets), "replay_triplets": replayed}
 
 
 def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:

@@ -25,6 +25,14 @@ _TRAINING = dict(
     time_limit=TRAINING_HARD_LIMIT_S,
     queue=broker.QUEUE_TRAINING,
 )
+_ROBOT = dict(
+    bind=True,
+    acks_late=True,
+    reject_on_worker_lost=True,
+    soft_time_limit=CAPTURE_SOFT_LIMIT_S,
+    time_limit=CAPTURE_HARD_LIMIT_S,
+    queue=broker.QUEUE_ROBOT,
+)
 
 
 def _run(task: Task, run_id: int) -> str:
@@ -60,19 +68,34 @@ def evaluate(self: Task, run_id: int) -> str:
     return _run(self, run_id)
 
 
-@app.task(
-    name=broker.TASK_CAPTURE_SNAPSHOTS,
-    bind=True,
-    acks_late=True,
-    reject_on_worker_lost=True,
-    soft_time_limit=CAPTURE_SOFT_LIMIT_S,
-    time_limit=CAPTURE_HARD_LIMIT_S,
-    queue=broker.QUEUE_ROBOT,
-)
+@app.task(name=broker.TASK_CAPTURE_SNAPSHOTS, **_ROBOT)
 def capture_snapshots(self: Task, robot_id: int, household_id: int, count: int) -> dict:
     """Render `count` camera views from random poses of a simulated robot into snapshots."""
     from worker.capture import capture_views
 
     result = capture_views(robot_id, household_id, count, task_id=self.request.id)
     logger.info("captured %s views for robot %s", result["created"], robot_id)
+    return {k: v for k, v in result.items() if k != "snapshot_ids"}
+
+
+@app.task(name=broker.TASK_TRY_COMMANDS, **_ROBOT)
+def try_commands(
+    self: Task, robot_id: int, household_id: int, attempts: int, random_views: int, commands: list[str]
+) -> dict:
+    """The robot tries the household's recorded commands with its active policy (or its base model): each
+    attempt's final view becomes a snapshot to judge, with its replay; then `random_views` random views.
+    What cannot work (no model, no recordings) ends the task as refused, saying what to do."""
+    from worker.attempts import AttemptRefused, report_refusal
+    from worker.attempts import try_commands as attempt
+
+    try:
+        result = attempt(robot_id, household_id, attempts, random_views, commands, task_id=self.request.id)
+    except AttemptRefused as refusal:
+        report_refusal(self.request.id, robot_id, "refused", str(refusal))
+        logger.info("attempts for robot %s refused: %s", robot_id, refusal)
+        return {"robot_id": robot_id, "refused": str(refusal)}
+    except Exception as error:
+        report_refusal(self.request.id, robot_id, "failed", f"{type(error).__name__}: {error}")
+        raise
+    logger.info("stored %s attempts for robot %s", result["created"], robot_id)
     return {k: v for k, v in result.items() if k != "snapshot_ids"}

@@ -131,3 +131,46 @@ def test_the_gate_says_what_changed_in_the_households_own_command_words() -> Non
     assert "*two* now works in 16 of 20 tries, was 6 of 20" in decision.summary
     assert "*zero*" not in decision.summary, "an unchanged command is not mentioned"
     assert decision.summary.endswith("the new version is active.")
+
+
+def test_replay_joins_views_of_the_training_room_paired_by_what_is_in_view_and_never_held_out() -> None:
+    from learning.sounds import SoundCorpus
+    from worker.replay import _joined
+
+    data = _toy_data(np.ones((2, 100, 40), dtype=np.float32))
+    data.held_out[:2] = True
+    corpus = SoundCorpus(
+        name="wordset", kind="speech", features=np.random.default_rng(1).random((8, 100, 40), np.float32),
+        intent=np.arange(8) % 4, speaker=np.array(["a"] * 8), split=np.array(["train"] * 8),
+        clip=np.array([f"{i}.wav" for i in range(8)]), intent_names=["a", "b", "c", "d"], manifest_hash="x",
+    )  # fmt: skip
+    heard = np.array([-1, 0, 3, -1, 2, 1])
+    images = np.zeros((6, 16, 16, 3), dtype=np.uint8)
+    joined = _joined(data, corpus, images, heard, np.random.default_rng(2))
+
+    replayed = joined.triplets[len(data.triplets) :]
+    assert len(replayed) == 6 and not joined.held_out[len(data.triplets) :].any()
+    assert (joined.test_triplets == data.test_triplets).all(), "the held-out triplets stay the household's"
+    for image_row, positive, negative in replayed:
+        seen = joined.sim_heard[image_row]
+        if seen < 0:
+            assert positive == SILENCE_ROW and negative >= len(data.features), "nothing in view: silence"
+        else:
+            assert joined.clip_intent[positive] == seen and positive >= len(data.features)
+            assert negative == SILENCE_ROW or joined.clip_intent[negative] != seen
+
+
+def test_a_fine_tune_whose_replay_corpus_is_missing_says_what_to_do(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from learning.var.checkpoint import save_var
+    from learning.var.model import VAR, VARConfig
+    from worker.replay import ReplayMissing, with_replay
+
+    data = _toy_data(np.ones((2, 100, 40), dtype=np.float32))
+    unnamed = save_var(VAR(VARConfig(image_size=16)), tmp_path / "unnamed.pt")
+    same, added = with_replay(data, unnamed, "kuka", 0.0, 0)
+    assert same is data and added == 0, "no replay asked: none needed"
+    with pytest.raises(ReplayMissing, match="names no sound corpus to replay"):
+        with_replay(data, unnamed, "kuka", 0.25, 0)
+    notes = save_var(VAR(VARConfig(image_size=16)), tmp_path / "notes.pt", sound_set="notes")
+    with pytest.raises(ReplayMissing, match="build it with `varbot sounds build --sets notes`"):
+        with_replay(data, notes, "kuka", 0.25, 0)
