@@ -109,10 +109,11 @@ class AttemptChoice:
 
 
 def next_attempt(
-    session: Session, user_id: int, household_id: int, robot_id: int | None
+    session: Session, user_id: int, household_id: int, robot_id: int | None, skipped: list[int] | None = None
 ) -> AttemptChoice | None:
-    """The oldest unanswered attempt whose command still has a recording, claimed for this member (an
-    attempt another member is judging is passed over, as pairs are); None when there is none."""
+    """The oldest unanswered attempt whose command still has a recording and that this member has not
+    `skipped`, claimed for them (an attempt another member is judging is passed over, as pairs are); None
+    when there is none."""
     commands = household_commands(session, household_id)
     query = select(models.Snapshot).where(
         models.Snapshot.household_id == household_id,
@@ -122,6 +123,8 @@ def next_attempt(
     )
     if robot_id is not None:
         query = query.where(models.Snapshot.robot_id == robot_id)
+    if skipped:
+        query = query.where(models.Snapshot.id.not_in(skipped))
     fallback = None
     for snapshot in session.scalars(query.order_by(models.Snapshot.id).limit(_CANDIDATES)):
         asked = commands.get(str((snapshot.meta or {}).get("attempt", {}).get("command")))

@@ -4,7 +4,7 @@
 import uuid
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Path, Request, Response, status
+from fastapi import APIRouter, Path, Query, Request, Response, status
 from pydantic import BaseModel, Field, StringConstraints
 
 from backend import broker, models, schemas
@@ -19,6 +19,7 @@ router = APIRouter(tags=["attempts"])
 
 CommandWord = Annotated[str, StringConstraints(min_length=1, max_length=100)]
 TaskId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="the task_id POST …/attempts answered")]
+Skipped = Annotated[list[int] | None, Query(max_length=100, description="attempts skipped this visit")]
 MAX_ATTEMPTS = 100
 
 
@@ -130,12 +131,19 @@ def attempts_status(
 
 
 @router.get("/attempts/next", response_model=NextAttempt, responses=errors(404))
-def next_attempt(caller: CallerDep, session: SessionDep, robot_id: QueryId = None) -> NextAttempt:
+def next_attempt(
+    caller: CallerDep,
+    session: SessionDep,
+    robot_id: QueryId = None,
+    skip: Annotated[
+        list[int] | None, Query(max_length=100, description="attempts skipped this visit")
+    ] = None,
+) -> NextAttempt:
     """The next attempt to judge: its final view, the command the robot was given, its replay frames and the
     other commands a 'no' may name."""
     if robot_id is not None:
         robots.get_robot(session, caller.household_id, robot_id)
-    choice = attempts.next_attempt(session, caller.user_id, caller.household_id, robot_id)
+    choice = attempts.next_attempt(session, caller.user_id, caller.household_id, robot_id, skip)
     if choice is None:
         return NextAttempt(
             snapshot=None, asked=None, clip_id=None, others=[], frames=[],

@@ -1,5 +1,6 @@
 import { api } from "../api.js";
 import { element, pageFailed, pageReady, robotPicker, say, startPage } from "../shell.js";
+import { attemptMode } from "./label_attempts.js";
 
 const $ = (id) => document.getElementById(id);
 const message = $("label-message");
@@ -13,6 +14,8 @@ const history = []; // {kind: "label" | "skip", pair, labelId}
 let sessionCount = 0;
 let queue = Promise.resolve(); // answers are applied one after another, however fast the keys come
 let waitingForViews = null;
+let attempts = null; // the "did it do what I said?" mode (label_attempts.js)
+let judgingAttempts = false;
 
 const pairKey = (pair) => `${pair.snapshot.id}:${pair.clip.id}`;
 
@@ -174,9 +177,29 @@ function enqueue(action) {
 
 const KEYS = { y: () => answer("is"), n: () => answer("is_not"), s: skip, z: undo, r: async () => play() };
 
+/** Switch between "is it this command?" (pairs) and "did it do what I said?" (attempts). */
+function setMode(toAttempts) {
+  judgingAttempts = toAttempts;
+  document.body.dataset.mode = toAttempts ? "attempts" : "pairs";
+  $("mode-pairs").setAttribute("aria-pressed", String(!toAttempts));
+  $("mode-attempts").setAttribute("aria-pressed", String(toAttempts));
+  $("pair-view").hidden = toAttempts;
+  $("attempt-view").hidden = !toAttempts;
+  if (toAttempts) {
+    $("clip").pause();
+    attempts.start();
+  } else {
+    attempts.stop();
+    enqueue(() => advance());
+  }
+}
+
 async function main() {
   await startPage("label");
-  picker = await robotPicker($("robot"), () => enqueue(() => advance()));
+  picker = await robotPicker($("robot"), () => (judgingAttempts ? attempts.start() : enqueue(() => advance())));
+  attempts = attemptMode(() => picker.current());
+  $("mode-pairs").addEventListener("click", () => setMode(false));
+  $("mode-attempts").addEventListener("click", () => setMode(true));
   $("yes").addEventListener("click", () => enqueue(() => answer("is")));
   $("no").addEventListener("click", () => enqueue(() => answer("is_not")));
   $("skip").addEventListener("click", () => enqueue(skip));
@@ -187,13 +210,24 @@ async function main() {
     if (event.ctrlKey || event.metaKey || event.altKey || event.repeat) return;
     const tag = event.target.tagName;
     if (tag === "INPUT" || tag === "SELECT" || tag === "TEXTAREA") return;
-    const action = KEYS[event.key.toLowerCase()];
+    const name = event.key.toLowerCase();
+    if (name === "m") {
+      event.preventDefault();
+      return setMode(!judgingAttempts);
+    }
+    if (judgingAttempts) {
+      if (attempts.key(name)) event.preventDefault();
+      return;
+    }
+    const action = KEYS[name];
     if (!action) return;
     event.preventDefault();
     if (event.key.toLowerCase() === "r") play();
     else enqueue(action);
   });
+  document.body.dataset.mode = "pairs";
   pageReady();
+  if (location.hash === "#attempts") return setMode(true); // /label#attempts opens "did it do what I said?"
   await advance();
 }
 
