@@ -84,7 +84,7 @@ def activate(session: Session, version: models.ModelVersion) -> models.ModelVers
 def rollback(session: Session, robot: models.Robot) -> models.ModelVersion:
     current = active_version(session, robot.id)
     if current is None or current.previous_active_id is None:
-        raise Conflict(f"robot {robot.id} has no earlier active model version to roll back to")
+        raise Conflict(f"“{robot.name}” has no earlier version in use to go back to")
     target = session.get_one(models.ModelVersion, current.previous_active_id)
     _switch(session, current, target)
     session.commit()

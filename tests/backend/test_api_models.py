@@ -52,6 +52,8 @@ def test_activation_retires_the_previous_version_and_rollback_walks_back(admin, 
     assert admin.client.get(f"/api/v1/robots/{robot}").json()["active_model_id"] == v1
     nothing = admin.client.post(f"/api/v1/robots/{robot}/models:rollback")
     assert nothing.status_code == 409 and "no earlier" in nothing.json()["detail"]
+    name = admin.client.get(f"/api/v1/robots/{robot}").json()["name"]
+    assert name in nothing.json()["detail"] and f"robot {robot}" not in nothing.json()["detail"]  # its name
 
 
 def test_activating_the_active_version_changes_nothing(admin, versions) -> None:

@@ -7,7 +7,9 @@ export function commandKey(clip) {
   return name ? `name:${name.toLocaleLowerCase()}` : `clip:${clip.id}`;
 }
 
-/** The household's commands, most recorded first: [{key, name, clips: [clip], bySpeaker: Map(id → count)}]. */
+const firstId = (command) => Math.min(...command.clips.map((clip) => clip.id));
+
+/** The household's commands, most recorded first, then in the order they were first recorded: [{key, name, clips: [clip], bySpeaker: Map(id → count)}]. */
 export function groupCommands(clips) {
   const commands = new Map();
   for (const clip of clips) {
@@ -17,7 +19,7 @@ export function groupCommands(clips) {
     command.clips.push(clip);
     command.bySpeaker.set(clip.speaker_id, (command.bySpeaker.get(clip.speaker_id) || 0) + 1);
   }
-  return [...commands.values()].sort((a, b) => b.clips.length - a.clips.length || a.name.localeCompare(b.name));
+  return [...commands.values()].sort((a, b) => b.clips.length - a.clips.length || firstId(a) - firstId(b));
 }
 
 // What each kind of robot can be sent to (sim/blocks.py INTENT_NAMES, sim/turtlebot_arena.py OBJECTS).

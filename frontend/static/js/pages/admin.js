@@ -57,6 +57,7 @@ async function drawHealth() {
 async function drawRobots() {
   const robots = await api("/robots");
   $("robots").innerHTML = "";
+  if (!robots.length) $("robots").append(element("li", { class: "muted", text: "No robots yet: add the household's first one below." }));
   for (const robot of robots) $("robots").append(element("li", { text: `${robot.name} — ${robot.kind}${robot.active_model_id ? ` · active model ${robot.active_model_id}` : " · no active model"}` }));
 }
 
@@ -71,10 +72,11 @@ async function drawModels() {
     const action = version.status === "active" ? element("span", { class: "muted", text: "in use" })
       : element("button", { type: "button", class: "secondary", text: "Activate", "aria-label": `Activate version ${version.id}`,
           onclick: () => modelAction(`/models/${version.id}:activate`, `Version ${version.id} is active now.`) });
-    body.append(element("tr", {}, element("td", { text: String(version.id) }), element("td", {}, element("span", { class: `status-pill ${version.status === "active" ? "succeeded" : ""}`, text: version.status })),
-      element("td", { text: version.run_id ? `run ${version.run_id}` : "base" }), element("td", { text: figures || "—" }), element("td", { text: when(version.created_at) }), element("td", {}, action)));
+    const cell = (label, ...content) => element("td", { "data-label": label }, ...content);
+    body.append(element("tr", {}, cell("Version", String(version.id)), cell("Status", element("span", { class: `status-pill ${version.status === "active" ? "succeeded" : ""}`, text: version.status })),
+      cell("From run", version.run_id ? `run ${version.run_id}` : "base"), cell("Figures", figures || "—"), cell("Created", when(version.created_at)), element("td", {}, action)));
   }
-  if (!versions.length) body.append(element("tr", {}, element("td", { colspan: 6, class: "muted", text: "No model versions for this robot yet." })));
+  if (!versions.length) body.append(element("tr", {}, element("td", { colspan: 6, class: "muted", text: `No model versions for ${robot.name} yet: once a training run finishes, its version appears here.` })));
 }
 
 async function modelAction(path, done) {
@@ -93,7 +95,7 @@ async function main() {
   $("start").addEventListener("submit", async (event) => {
     event.preventDefault();
     const robot = picker.current();
-    if (!robot) return say($("start-message"), "Add a robot first (on the right).", "error");
+    if (!robot) return say($("start-message"), "Add a robot first: name it and choose its kind under “Robots”.", "error");
     const preset = new FormData(event.target).get("preset") || "quick";
     $("start-run").disabled = true;
     try {
@@ -120,7 +122,7 @@ async function main() {
   });
   $("rollback").addEventListener("click", () => {
     const robot = picker.current();
-    if (robot) modelAction(`/robots/${robot.id}/models:rollback`, "Rolled back: the previous version is active again.");
+    if (robot) modelAction(`/robots/${robot.id}/models:rollback`, `Rolled back: ${robot.name} uses its previous version again.`);
   });
   $("refresh-health").addEventListener("click", drawHealth);
   pageReady();

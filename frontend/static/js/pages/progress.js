@@ -9,6 +9,27 @@ const LIVE_METRIC = /loss|success|accuracy|reward|return/i;
 
 const X_KEYS = ["epoch", "update", "env_steps", "step"];
 const STAGE_NAMES = { var_finetune: "VAR", policy_improve: "policy", evaluate: "evaluation" };
+// What each stage, kind and status means, in words (worker/progress.py STAGE_WEIGHTS names the stages).
+const STAGE_WORDS = {
+  queued: "waiting for a training worker",
+  starting: "getting ready",
+  var_finetune: "learning your words",
+  policy_improve: "practising in the simulator",
+  evaluate: "testing the new version against the one in use",
+  promoting: "deciding which version to keep",
+  done: "done",
+  succeeded: "done",
+  failed: "stopped by an error",
+  cancelled: "cancelled",
+};
+const KIND_WORDS = {
+  finetune: "learn your words, practise, test",
+  var_finetune: "learn your words, test",
+  policy_improve: "practise, test",
+  evaluate: "test the version in use",
+};
+const STATUS_WORDS = { queued: "waiting", running: "running", succeeded: "finished", failed: "failed", cancelled: "cancelled" };
+const stageWords = (stage) => STAGE_WORDS[stage] || stage.replaceAll("_", " ");
 
 function isNumberList(value) {
   return Array.isArray(value) && value.length > 1 && value.every((v) => Number.isFinite(v) || (Array.isArray(v) && v.length === 2));
@@ -38,11 +59,51 @@ function savedCurves(metrics) {
   return Object.fromEntries(Object.entries(curves).filter(([, points]) => points.length > 1));
 }
 
-function promotionText(run) {
-  const gate = (run.metrics || {}).gate;
-  if (!gate || typeof gate !== "object") return "";
-  const verdict = gate.promoted ? "Promoted: the new version is active." : "Not promoted: the active version stays.";
-  return `${verdict} ${[].concat(gate.reasons || []).join("; ")}`.trim();
+/** The gate's verdict in sentences: its own summary (which uses the household's command words), or for runs
+ * from before the summary existed, one built from the scores. */
+function verdict(run) {
+  const metrics = run.metrics || {};
+  const gate = metrics.gate;
+  if (!gate || typeof gate !== "object") return null;
+  const kind = gate.verdict || (gate.promoted ? "better" : "no_change");
+  const text = gate.summary || olderVerdict(gate, metrics.evaluation || {});
+  return { kind, text, reasons: [].concat(gate.reasons || []) };
+}
+
+function olderVerdict(gate, evaluation) {
+  const { candidate, active } = evaluation;
+  const outcome = gate.promoted ? "the new version is active." : "kept the old version.";
+  if (!candidate || !active) return `${gate.promoted ? "Promoted" : "Not promoted"}: ${outcome}`;
+  const said = [];
+  const n = candidate.held_out_triplets;
+  if (n && Number.isFinite(candidate.triplet_accuracy) && Number.isFinite(active.triplet_accuracy)) {
+    said.push(`it matches ${Math.round(candidate.triplet_accuracy * n)} of ${n} held-out answers, was ${Math.round(active.triplet_accuracy * n)} of ${n}`);
+  }
+  const tries = candidate.sim_episodes;
+  if (tries && Number.isFinite(candidate.sim_success) && Number.isFinite(active.sim_success)) {
+    said.push(`it reaches the target in ${Math.round(candidate.sim_success * tries)} of ${tries} simulated tries, was ${Math.round(active.sim_success * tries)} of ${tries}`);
+  }
+  const text = said.join("; ");
+  return `${text ? text[0].toUpperCase() + text.slice(1) : gate.promoted ? "Promoted" : "Not promoted"}; ${outcome}`;
+}
+
+/** A verdict's text, with the *command words* the gate marks shown emphasised. */
+function verdictParagraph(found) {
+  const tone = { better: "ok", worse: "warn", no_change: "" }[found.kind] ?? "";
+  const parts = found.text.split(/\*([^*]+)\*/).map((part, i) => (i % 2 ? element("strong", { text: part }) : part));
+  return element("p", { class: `message verdict ${tone}`.trim(), "data-verdict": found.kind }, ...parts);
+}
+
+/** "about 3 min left", "less than a minute left", or "finishing up" once the bar is full: never a minute
+ * left at 100 %. The ETA is as of the run's last update; time since then counts off. */
+function timeLeft(run, shownFraction) {
+  if (run.status !== "running") return "";
+  if (shownFraction >= 0.99 || run.stage === "promoting") return " · finishing up";
+  const eta = (run.timings || {}).eta_s;
+  if (!Number.isFinite(eta)) return "";
+  const left = eta - Math.max(0, (Date.now() - Date.parse(run.updated_at)) / 1000);
+  if (left <= 5) return " · almost done";
+  return left < 60 ? " · less than a minute left" : ` · about ${Math.round(left / 60)} min left`;
 }
 
 /** Before = the active version's scores, after = the candidate's (metrics.evaluation from the promotion gate). */
@@ -97,21 +158,25 @@ function draw(run) {
     const older = [...list.children].find((other) => Number(other.dataset.runId) < run.id);
     list.insertBefore(card, older || null);
   }
-  const percent = Math.round(run.progress * 100);
-  const etaSeconds = (run.timings || {}).eta_s;
-  const running = run.status === "running";
-  const eta = running && Number.isFinite(etaSeconds) ? ` · about ${Math.max(1, Math.ceil(etaSeconds / 60))} min left` : "";
+  // the bar is full when the run is, not while it is still testing or deciding
+  const fraction = run.status === "succeeded" ? 1 : run.status === "running" || run.status === "queued" ? Math.min(run.progress, 0.99) : run.progress;
+  const percent = Math.floor(fraction * 100);
+  const stage = stageWords(run.status === "running" ? run.stage : run.status === "queued" ? "queued" : run.status);
+  const kind = KIND_WORDS[run.kind] || run.kind.replaceAll("_", " ");
   card.innerHTML = "";
   card.append(
     element("div", { class: "row" },
-      element("h2", { id: `run-${run.id}-title`, text: `Run ${run.id}: ${run.kind.replace("_", " ")} (${run.preset})` }),
-      element("span", { class: `status-pill ${run.status}`, text: run.status })),
-    element("p", { class: "muted", text: `Stage: ${run.stage} · ${percent}%${eta} · started ${when(run.started_at || run.created_at)}` }),
-    element("progress", { class: "bar", max: 1, value: run.progress, "aria-label": `Run ${run.id} progress`, "aria-valuetext": `${percent}% — ${run.stage}` }),
+      element("h2", { id: `run-${run.id}-title`, text: `Run ${run.id}: ${kind} (${run.preset})` }),
+      element("span", { class: `status-pill ${run.status}`, text: STATUS_WORDS[run.status] || run.status })),
+    element("p", { class: "muted", text: `Stage: ${stage} · ${percent}%${timeLeft(run, fraction)} · started ${when(run.started_at || run.created_at)}` }),
+    element("progress", { class: "bar", max: 1, value: fraction, "aria-label": `Run ${run.id} progress`, "aria-valuetext": `${percent}% — ${stage}` }),
   );
-  if (run.error) card.append(element("p", { class: "message error", text: `Failed during ${run.stage}: ${run.error}` }));
-  const promotion = promotionText(run);
-  if (promotion) card.append(element("p", { class: `message ${/^Promoted/.test(promotion) ? "ok" : "warn"}`, text: promotion }));
+  if (run.error) card.append(element("p", { class: "message error", text: `Stopped while ${stageWords(run.stage)}: ${run.error}` }));
+  const found = verdict(run);
+  if (found) {
+    card.append(verdictParagraph(found));
+    if (found.reasons.length) card.append(element("details", { class: "reasons" }, element("summary", { text: "How this was decided" }), element("ul", {}, ...found.reasons.map((reason) => element("li", { text: reason })))));
+  }
   const metrics = run.metrics || {};
   const saved = savedCurves(metrics);
   const curves = Object.keys(saved).length ? saved : live.get(run.id) || {};
@@ -119,11 +184,11 @@ function draw(run) {
   const groups = [
     ["Loss", /loss/i, "Loss"],
     ["Return", /return|reward/i, "Episode return (intrinsic reward)"],
-    ["Success", /success|accuracy/i, "Success and accuracy"],
+    ["Success", /success|accuracy/i, "Success and accuracy (0 to 1)", [0, 1]],
   ];
-  for (const [title, pattern, caption] of groups) {
+  for (const [title, pattern, caption, range] of groups) {
     const series = Object.fromEntries(Object.entries(curves).filter(([k]) => pattern.test(k)));
-    if (Object.keys(series).length) charts.append(element("figure", {}, lineChart(series, { title }), element("figcaption", { class: "muted", text: caption })));
+    if (Object.keys(series).length) charts.append(element("figure", {}, lineChart(series, { title, range }), element("figcaption", { class: "muted", text: caption })));
   }
   const comparison = beforeAfter(metrics);
   if (comparison) {
