@@ -6,7 +6,7 @@ import gymnasium as gym
 import numpy as np
 
 from sim import world_id
-from sim.domain import DomainShift
+from sim.domain import DomainShift, RoomRanges
 
 
 def random_views(
@@ -14,13 +14,14 @@ def random_views(
     count: int,
     seed: int,
     image_size: int = 96,
-    domain: DomainShift | None = None,
+    domain: DomainShift | RoomRanges | None = None,
 ) -> Iterator[tuple[np.ndarray, int | None, np.ndarray]]:
     """Yield `count` views `(image, heard, state)` while the robot moves at random as the reference does.
 
     The arms' gripper target jumps to random places in the workspace; the TurtleBot wanders. Each world's env
     provides `random_view_step(rng)`, which returns what `step` returns. A new scene (block row, object
-    layout) is drawn whenever an episode ends. The same arguments give the same views.
+    layout, and with `RoomRanges` a room) is drawn whenever an episode ends. The same arguments give the same
+    views.
     """
     if count < 0:
         raise ValueError(f"count must be zero or more views, got {count}")

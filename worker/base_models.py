@@ -11,11 +11,14 @@ import os
 import shutil
 import sys
 import time
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from core.paths import REPO_ROOT, data_dir
+from core.rooms import HELD_OUT_ROOMS, RANDOMISED_ROOMS, TRAINING_ROOM, RoomRanges, world_room
 
 SHIPPED_DIR = REPO_ROOT / "worker" / "base_models"
 RECORD = "base.json"
@@ -92,82 +95,106 @@ def write_base(
     return folder
 
 
-def build_base(
-    world: str,
-    sounds: str,
-    views: int,
-    image_size: int,
-    var_epochs: int,
-    policy_steps: int,
-    eval_episodes_per_intent: int,
-    out_root: Path,
-    seed: int = 0,
-    progress: bool = True,
-) -> dict[str, Any]:
-    """Collect views → train the VAR → train the policy with the intrinsic reward → evaluate → write."""
-    from learning.rl.evaluate import evaluate
-    from learning.rl.ppo import PPOConfig, load_policy
-    from learning.rl.rewards import corpus_bank
+@dataclass(frozen=True)
+class BaseRecipe:
+    """How a world's base model is made with the project's own trainers (recorded in its base.json).
+
+    `room` is a `core.rooms.world_room` name: "randomised" (the default) trains the VAR's views and the
+    policy's episodes over rooms drawn from `RoomRanges`, so the model survives a room it never saw;
+    "training" keeps the world's own look. The policy's PPO settings are PPOConfig's defaults, the shipped
+    Kuka policy's (intrinsic reward only, goal fused with the view, bounded mean, hard-target curriculum).
+    """
+
+    world: str = "kuka"
+    sounds: str = "wordset"
+    front_end: str = "mfcc"  # the VAR's sound front end (learning.front_ends)
+    room: str = RANDOMISED_ROOMS
+    views: int = 20_000
+    image_size: int = 96
+    var_epochs: int = 12
+    var_max_steps: int | None = None  # overrides var_epochs: the VAR's schedule in optimiser steps
+    policy_steps: int = 300_000
+    eval_episodes_per_intent: int = 25
+    eval_rooms: tuple[str, ...] = (TRAINING_ROOM, *HELD_OUT_ROOMS)
+    seed: int = 0
+    ppo_settings: dict[str, Any] = field(default_factory=dict)  # PPOConfig fields other than its defaults
+
+    @property
+    def name(self) -> str:
+        """The work folder's name: one per recipe, so a rerun of the same recipe resumes it."""
+        steps = f"{self.var_max_steps}steps" if self.var_max_steps else f"{self.var_epochs}ep"
+        return (
+            f"{self.world}-{self.sounds}-{self.front_end}-{self.room}-{self.views}-{self.image_size}px-"
+            f"{steps}-seed{self.seed}"
+        )
+
+
+def build_base(recipe: BaseRecipe, out_root: Path, progress: bool = True) -> dict[str, Any]:
+    """Collect views → train the VAR → train the policy with the intrinsic reward → evaluate → write.
+
+    Every stage resumes: a complete view set is reused, the VAR continues from its `last.pt` and the policy
+    from its `checkpoint.pt` (in `<data dir>/base_build/<recipe name>/`), so running the same recipe again
+    after an interruption, or with more `policy_steps`, picks up where it stopped.
+    """
+    from learning.rl.ppo import PPOConfig
     from learning.rl.run import train_run
-    from learning.sounds import load_corpus
-    from learning.var.checkpoint import load_var
     from learning.var.dataset import collect_dataset
+    from learning.var.model import VARConfig
     from learning.var.train import TrainConfig, train
 
-    work = data_dir() / "base_build" / f"{world}-{sounds}-{views}-{image_size}px-seed{seed}"
-    timings: dict[str, float] = {}
-    tick = time.perf_counter()
-    dataset = collect_dataset(
-        world, views, f"base-{world}-{views}-{image_size}px-seed{seed}", seed=seed, image_size=image_size,
-        progress=progress,
-    )  # fmt: skip
-    timings["collect_s"] = round(time.perf_counter() - tick, 1)
-    tick = time.perf_counter()
-    var_result = train(
-        TrainConfig(
-            dataset=str(dataset.path), sounds=sounds, run_dir=str(work / "var"), epochs=var_epochs,
-            seed=seed, threads=1, progress=progress,
-        )
-    )  # fmt: skip
-    timings["var_train_s"] = round(time.perf_counter() - tick, 1)
-    tick = time.perf_counter()
-    ppo = PPOConfig(world=world, sounds=sounds, image_size=image_size, total_steps=policy_steps, seed=seed)
-    policy_dir = work / "policy"
-    summary = train_run(ppo, policy_dir, var_result.checkpoint, resume=True, progress=progress)
-    timings["policy_train_s"] = round(time.perf_counter() - tick, 1)
-    tick = time.perf_counter()
-    corpus = load_corpus(sounds)
-    unheard = [s for s in corpus.splits if s != "train"]
-    var = load_var(var_result.checkpoint)
-    policy, _ = load_policy(policy_dir / "checkpoint.pt")
-    evaluations = {}
-    for split in unheard[:1]:
-        goals = corpus_bank(sounds, split, front_end=var.front_end).embed(var)
-        result = evaluate(
-            policy, var, goals, world, image_size, split=split,
-            episodes_per_intent=eval_episodes_per_intent, seed=seed + 999, progress=progress,
+    work = data_dir() / "base_build" / recipe.name
+    work.mkdir(parents=True, exist_ok=True)
+    clock = StageClock(work / "timings.json")
+    room = world_room(recipe.room)
+    with clock("collect_s"):
+        dataset = collect_dataset(
+            recipe.world, recipe.views, f"base-{recipe.world}-{recipe.room}-{recipe.views}-"
+            f"{recipe.image_size}px-seed{recipe.seed}", seed=recipe.seed, image_size=recipe.image_size,
+            domain=room, progress=progress,
         )  # fmt: skip
-        evaluations[split] = {"success_rate": result.success_rate, "episodes": len(result.episodes)}
-    timings["evaluate_s"] = round(time.perf_counter() - tick, 1)
+    with clock("var_train_s"):
+        var_result = train(
+            TrainConfig(
+                dataset=str(dataset.path), sounds=recipe.sounds, run_dir=str(work / "var"),
+                model=VARConfig(front_end=recipe.front_end), epochs=recipe.var_epochs,
+                max_steps=recipe.var_max_steps, seed=recipe.seed, threads=1, progress=progress,
+            )
+        )  # fmt: skip
+    ppo = PPOConfig(
+        world=recipe.world, sounds=recipe.sounds, image_size=recipe.image_size,
+        total_steps=recipe.policy_steps, seed=recipe.seed, room=recipe.room, **recipe.ppo_settings,
+    )  # fmt: skip
+    policy_dir = work / "policy"
+    with clock("policy_train_s"):
+        summary = train_run(ppo, policy_dir, var_result.checkpoint, resume=True, progress=progress)
+    with clock("evaluate_s"):
+        evaluations = evaluate_in_rooms(
+            var_result.checkpoint, policy_dir / "checkpoint.pt", recipe.eval_rooms,
+            episodes_per_intent=recipe.eval_episodes_per_intent, seed=recipe.seed + 999, progress=progress,
+        )  # fmt: skip
     record = {
-        "world": world,
-        "sounds": sounds,
-        "feature_kind": corpus.kind,
-        "image_size": image_size,
+        "world": recipe.world,
+        "sounds": recipe.sounds,
+        "front_end": recipe.front_end,
+        "feature_kind": "speech",
+        "image_size": recipe.image_size,
+        "recipe": asdict(recipe),
+        "room_ranges": asdict(room) if isinstance(room, RoomRanges) else None,
         "command": " ".join(["varbot", "models", "build-base", *sys.argv[3:]])
         if "build-base" in sys.argv
         else None,
-        "views": views,
-        "var_epochs": var_epochs,
+        "views": recipe.views,
+        "var_steps": var_result.steps,
         "var_best_val_balanced_accuracy": var_result.best_val_accuracy,
         "var_final_val_balanced_accuracy": var_result.final_val_accuracy,
+        "policy_config": asdict(ppo),
         "policy_env_steps": summary["env_steps"],
         "policy_recent_success_in_training": summary["recent_success"],
         "evaluation": evaluations,
-        "timings": timings,
+        "timings": clock.totals(),
         "built_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
-    folder = write_base(world, var_result.checkpoint, policy_dir / "checkpoint.pt", out_root, record)
+    folder = write_base(recipe.world, var_result.checkpoint, policy_dir / "checkpoint.pt", out_root, record)
     for source, name in (
         (work / "var" / "metrics.png", "var_curves.png"),
         (policy_dir / "curves.png", "policy_curves.png"),
@@ -175,3 +202,71 @@ def build_base(
         if source.is_file():
             shutil.copy(source, folder / name)
     return record
+
+
+def evaluate_in_rooms(
+    var_path: Path,
+    policy_path: Path,
+    rooms: Sequence[str],
+    splits: Sequence[str] | None = None,
+    episodes_per_intent: int = 50,
+    seed: int = 12345,
+    progress: bool = False,
+    on_cell: Callable[[str, str, dict[str, Any]], None] | None = None,
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """Zero-shot success of a VAR + policy in each room on each unheard tier (default: all of the corpus's),
+    with the RL evaluation protocol: {room: {tier: cell}}. `on_cell(room, tier, cell)` hears of each cell."""
+    import torch
+
+    from learning.rl.evaluate import evaluate
+    from learning.rl.ppo import PPOConfig, load_policy
+    from learning.rl.rewards import corpus_bank
+    from learning.sounds import load_corpus
+    from learning.var.checkpoint import load_var
+
+    var = load_var(var_path)
+    policy, payload = load_policy(policy_path)
+    config = PPOConfig.from_dict(payload["config"])
+    torch.set_num_threads(1)  # the env workers come from a fork server, which torch's threads never reach
+    splits = splits or [s for s in load_corpus(config.sounds).splits if s != "train"]
+    evaluations: dict[str, dict[str, dict[str, Any]]] = {}
+    for split in splits:
+        goals = corpus_bank(config.sounds, split, front_end=var.front_end).embed(var)
+        for room in rooms:
+            tick = time.perf_counter()
+            result = evaluate(
+                policy, var, goals, config.world, config.image_size, split=split,
+                episodes_per_intent=episodes_per_intent, seed=seed, success_rule=config.success_rule,
+                max_steps=config.max_episode_steps, domain=world_room(room), progress=progress,
+            )  # fmt: skip
+            cell = {
+                "success_rate": result.success_rate,
+                "success_by_intent": result.success_by_intent,
+                "episodes": len(result.episodes),
+                "wall_s": round(time.perf_counter() - tick, 1),
+            }
+            evaluations.setdefault(room, {})[split] = cell
+            if on_cell is not None:
+                on_cell(room, split, cell)
+    return evaluations
+
+
+class StageClock:
+    """Wall time per stage, summed over every run of a recipe (kept in a file, so resumes add to it)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def totals(self) -> dict[str, float]:
+        return json.loads(self.path.read_text()) if self.path.is_file() else {}
+
+    @contextmanager
+    def __call__(self, stage: str) -> Iterator[None]:
+        tick = time.perf_counter()
+        try:
+            yield
+        finally:
+            totals = self.totals()
+            totals[stage] = round(totals.get(stage, 0.0) + time.perf_counter() - tick, 1)
+            totals["total_s"] = round(sum(v for k, v in totals.items() if k != "total_s"), 1)
+            self.path.write_text(json.dumps(totals, indent=2) + "\n")

@@ -56,24 +56,36 @@ def worker(
 def build_base(
     world: Annotated[str, typer.Option(help="kuka, kinova or turtlebot")] = "kuka",
     sounds: Annotated[str, typer.Option(help="sound corpus (built with `varbot sounds build`)")] = "wordset",
+    front_end: Annotated[
+        str, typer.Option(help="the VAR's sound front end: mfcc or speech-embedding")
+    ] = "mfcc",
+    room: Annotated[
+        str, typer.Option(help="randomised (a room per episode from core.rooms.RoomRanges) or training")
+    ] = "randomised",
     views: Annotated[int, typer.Option(min=100, help="random views collected for VAR triplets")] = 20_000,
     image_size: Annotated[int, typer.Option(help="camera image size (pixels)")] = 96,
     var_epochs: Annotated[int, typer.Option(min=1)] = 12,
+    var_max_steps: Annotated[int | None, typer.Option(min=1, help="overrides --var-epochs")] = None,
     policy_steps: Annotated[int, typer.Option(min=800, help="PPO environment steps")] = 300_000,
     eval_episodes_per_intent: Annotated[int, typer.Option(min=1)] = 25,
     out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
     seed: Annotated[int, typer.Option()] = 0,
 ) -> None:
-    """Train the base VAR + policy for one simulated world with the project's own trainers and record how."""
+    """Train the base VAR + policy for one simulated world with the project's own trainers and record how.
+
+    Rerunning the same command resumes it (views, VAR and policy each continue from their checkpoints)."""
     import json
 
     from core.paths import data_dir
+    from worker.base_models import BaseRecipe
     from worker.base_models import build_base as build
 
-    record = build(
-        world, sounds, views, image_size, var_epochs, policy_steps, eval_episodes_per_intent,
-        out or data_dir() / "base_models", seed=seed,
+    recipe = BaseRecipe(
+        world=world, sounds=sounds, front_end=front_end, room=room, views=views, image_size=image_size,
+        var_epochs=var_epochs, var_max_steps=var_max_steps, policy_steps=policy_steps,
+        eval_episodes_per_intent=eval_episodes_per_intent, seed=seed,
     )  # fmt: skip
+    record = build(recipe, out or data_dir() / "base_models")
     typer.echo(json.dumps(record, indent=2))
 
 

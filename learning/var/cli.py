@@ -11,15 +11,17 @@ app = typer.Typer(
     no_args_is_help=True,
 )
 
-DOMAINS = ("none", "unseen-room")
+DOMAINS = ("none", "unseen-room", "randomised")
 
 
 def _domain(name: str):
-    from sim.domain import DomainShift
+    """The room views are collected in: the training room, the shifted one, or a room per episode drawn from
+    the training ranges (core.rooms.RoomRanges, how base models are trained)."""
+    from core.rooms import world_room
 
     if name not in DOMAINS:
         raise typer.BadParameter(f"--domain must be one of {', '.join(DOMAINS)}, got {name!r}.")
-    return DomainShift.unseen_room() if name == "unseen-room" else None
+    return world_room({"none": "training", "unseen-room": "unseen_room"}.get(name, name))
 
 
 def _default_run_dir(dataset: str, sounds: str, kind: str) -> str:
@@ -61,7 +63,10 @@ def collect(
     seed: int = 0,
     image_size: int = 96,
     domain: Annotated[
-        str, typer.Option(help="none or unseen-room (a shifted room, for fine-tuning).")
+        str,
+        typer.Option(
+            help="none, unseen-room (a shifted room, for fine-tuning) or randomised (a room per episode)."
+        ),
     ] = "none",
     workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 2,
     overwrite: bool = False,

@@ -1,6 +1,7 @@
 """Base models: checkpoints trained by the benchmarks become a world's base model with their record."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -53,3 +54,40 @@ def test_a_policy_of_another_world_is_refused(tmp_path: Path, record: Path) -> N
     result = adopt("turtlebot", tmp_path / "models", record)
     assert result.exit_code == 2 and "trained in the kuka world" in result.output
     assert not (tmp_path / "models" / "turtlebot").exists()
+
+
+def test_a_base_build_over_randomised_rooms_resumes_from_its_checkpoints(tmp_path: Path) -> None:
+    """The long base-model run is resumable: the same recipe run again (here: with more policy steps) reuses
+    the views, does not retrain the VAR and continues the policy from its checkpoint."""
+    from learning.sounds.build import build_corpora
+    from worker.base_models import BaseModel, BaseRecipe, build_base
+
+    build_corpora(["wordset"], profile="small", progress=False, log=lambda _: None)
+    tiny_ppo = {
+        "num_envs": 2, "env_groups": 1, "num_steps": 12, "num_minibatches": 2, "update_epochs": 1,
+        "checkpoint_every": 1, "max_episode_steps": 5, "policy_image_size": 16,
+    }  # fmt: skip
+    recipe = BaseRecipe(
+        views=200, image_size=16, var_max_steps=3, policy_steps=24, eval_episodes_per_intent=1,
+        eval_rooms=("training", "unseen_room"), ppo_settings=tiny_ppo,
+    )  # fmt: skip
+    first = build_base(recipe, tmp_path / "models", progress=False)
+    again = build_base(replace(recipe, policy_steps=48), tmp_path / "models", progress=False)
+
+    assert (first["policy_env_steps"], again["policy_env_steps"]) == (24, 48)
+    assert again["var_steps"] == first["var_steps"] == 3, "the VAR was not trained again"
+    assert again["timings"]["collect_s"] < first["timings"]["collect_s"] * 1.5, "the views were reused"
+    assert again["timings"]["policy_train_s"] > first["timings"]["policy_train_s"], "stage times add up"
+    updates = [json.loads(line)["update"] for line in (_work(recipe) / "policy" / "metrics.jsonl").open()]
+    assert updates == [1, 2], "one update of 24 steps, then the second run continued with update 2"
+    assert again["recipe"]["room"] == "randomised" and again["room_ranges"]["camera_jitter_m"] > 0
+    assert set(again["evaluation"]) == {"training", "unseen_room"}
+    assert set(again["evaluation"]["unseen_room"]) >= {"unheard-easy", "unheard-real-voices"}
+    record = BaseModel("kuka", tmp_path / "models" / "kuka").record
+    assert record["front_end"] == "mfcc" and record["timings"]["total_s"] > 0
+
+
+def _work(recipe) -> Path:  # type: ignore[no-untyped-def]
+    from core.paths import data_dir
+
+    return data_dir() / "base_build" / recipe.name

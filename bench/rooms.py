@@ -1,0 +1,173 @@
+"""Zero-shot success of a base model in the training room and in both held-out rooms (issue 25, item 1).
+
+A base model (a world's VAR + policy, `worker/base_models.py`) is evaluated with the RL protocol
+(`learning.rl.evaluate`: fixed episode list, deterministic policy, unheard goal clips) in each room of
+`--rooms` (default: training, unseen_room, lamplit_room; `core.rooms`) and each unheard tier of `--splits`.
+Nothing is fine-tuned: this is what a new household's robot does on its first day in a room it never saw.
+Prints a table and writes bench/results/rooms.json, one entry per `--tag` ("before": today's shipped base;
+"after": the randomised-room base), with the machine and the load average before and after.
+
+`--env-speed` measures instead what drawing a room per episode costs each world: episodes in the fixed
+training room and in randomised rooms, interleaved (so both meet the same load), ms per step and per reset
+(bench/results/rooms_env_speed.json).
+
+    nice -n 10 .venv/bin/python bench/rooms.py --tag before [--base worker/base_models/kuka]
+        [--episodes-per-intent 50] [--rooms training,unseen_room,lamplit_room]
+    nice -n 10 .venv/bin/python bench/rooms.py --env-speed [--rounds 4]
+"""
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from conditions import Conditions, describe
+from result_files import relative_path, write_result
+from rich.console import Console
+from rich.table import Table
+
+from core.rooms import HELD_OUT_ROOMS, TRAINING_ROOM, RoomRanges
+
+RESULTS = Path(__file__).resolve().parent / "results" / "rooms.json"
+SPEED_RESULTS = RESULTS.with_name("rooms_env_speed.json")
+ROOM_KINDS = {"training": None, "randomised": RoomRanges()}
+ROOMS = (TRAINING_ROOM, *HELD_OUT_ROOMS)
+SPLITS = ("unheard-easy", "unheard-real-voices")
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--world", default="kuka")
+    parser.add_argument("--base", type=Path, default=None, help="base model folder (default: find_base)")
+    parser.add_argument("--tag", help="the entry in rooms.json, e.g. before / after")
+    parser.add_argument("--env-speed", action="store_true", help="measure the cost of randomised rooms")
+    parser.add_argument("--rounds", type=int, default=4, help="--env-speed: episodes per room kind and world")
+    parser.add_argument("--rooms", default=",".join(ROOMS))
+    parser.add_argument("--splits", default=",".join(SPLITS))
+    parser.add_argument("--episodes-per-intent", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=12345)
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    return parser.parse_args(argv)
+
+
+def evaluate_base(args: argparse.Namespace, save: Callable[[dict], None]) -> dict:
+    """Success of the base model in every room × tier cell, with what it is; `save` gets the entry after every
+    cell (an interrupted run keeps the cells it finished)."""
+    from learning.var.checkpoint import front_end_of
+    from worker.base_models import BaseModel, evaluate_in_rooms, find_base
+
+    base = BaseModel(args.world, args.base) if args.base else find_base(args.world)
+    entry = {
+        "base": relative_path(base.folder),
+        "base_built_at": base.record.get("built_at"),
+        "base_recipe": base.record.get("recipe", "training room only (before issue 25)"),
+        "front_end": front_end_of(base.var_path),
+        "sounds": base.record.get("sounds"),
+        "episodes_per_intent": args.episodes_per_intent,
+        "seed": args.seed,
+        "cells": {},
+    }
+
+    def on_cell(room: str, split: str, cell: dict) -> None:
+        entry["cells"].setdefault(room, {})[split] = cell
+        print(f"{room} / {split}: {cell['success_rate']:.1%} ({cell['episodes']} episodes)", flush=True)
+        save(entry)
+
+    evaluate_in_rooms(
+        base.var_path, base.policy_path, args.rooms.split(","), args.splits.split(","),
+        episodes_per_intent=args.episodes_per_intent, seed=args.seed, on_cell=on_cell,
+    )  # fmt: skip
+    return entry
+
+
+def table(entry: dict, tag: str) -> Table:
+    splits = sorted({split for cells in entry["cells"].values() for split in cells})
+    view = Table(title=f"{tag}: zero-shot success of {entry['base']} ({entry['front_end']} front end)")
+    view.add_column("room")
+    for split in splits:
+        view.add_column(split, justify="right")
+    for room, cells in entry["cells"].items():
+        view.add_row(room, *(_cell(cells.get(split)) for split in splits))
+    return view
+
+
+def _cell(cell: dict | None) -> str:
+    return "—" if cell is None else f"{cell['success_rate']:.1%} ({cell['episodes']})"
+
+
+def env_speed(rounds: int) -> dict[str, dict[str, float]]:
+    """ms per step and per reset in each world, training room versus randomised rooms (96 px, one process)."""
+    import gymnasium as gym
+    import numpy as np
+
+    import sim
+
+    speeds: dict[str, dict[str, float]] = {}
+    for world, env_id in sim.WORLDS.items():
+        envs = {
+            "training": gym.make(env_id, image_size=96),
+            "randomised": gym.make(env_id, domain=RoomRanges()),
+        }
+        spent = {kind: {"reset_s": 0.0, "step_s": 0.0, "resets": 0, "steps": 0} for kind in envs}
+        rng = np.random.default_rng(0)
+        for episode in range(rounds):
+            for kind, env in envs.items():
+                tick = time.perf_counter()
+                env.reset(seed=episode)
+                spent[kind]["reset_s"] += time.perf_counter() - tick
+                tick, truncated = time.perf_counter(), False
+                while not truncated:
+                    truncated = env.step(rng.uniform(-1, 1, 2).astype(np.float32))[3]
+                    spent[kind]["steps"] += 1
+                spent[kind]["step_s"] += time.perf_counter() - tick
+                spent[kind]["resets"] += 1
+        for env in envs.values():
+            env.close()
+        speeds[world] = {
+            f"{kind}_{what}_ms": round(1000 * spent[kind][f"{what}_s"] / spent[kind][f"{what}s"], 2)
+            for kind in envs
+            for what in ("reset", "step")
+        }
+        print(world, speeds[world], flush=True)
+    return speeds
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = parse_args(argv)
+    if args.env_speed:
+        conditions = Conditions()
+        measured = {"worlds": env_speed(args.rounds), "rounds": args.rounds, "image_size": 96}
+        measured.update(conditions.finish())
+        write_result(SPEED_RESULTS, {"benchmark": "rooms --env-speed", **measured})
+        Console().print(describe(measured))
+        return
+    if not args.tag:
+        raise SystemExit("--tag names the entry (e.g. before / after)")
+    conditions = Conditions()
+    command = " ".join(["bench/rooms.py", *(argv if argv is not None else sys.argv[1:])])
+
+    def save(entry: dict) -> None:
+        entry.update(conditions.finish())
+        entry["measured"] = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
+        entry["command"] = command
+        entry["cells_done"] = sum(len(cells) for cells in entry["cells"].values())
+        results = (
+            json.loads(args.out.read_text()) if args.out.is_file() else {"benchmark": "rooms", "entries": {}}
+        )
+        results["entries"][args.tag] = entry
+        write_result(args.out, results)
+
+    entry = evaluate_base(args, save)
+    console = Console()
+    console.print(table(entry, args.tag))
+    console.print(describe(entry))
+
+
+if __name__ == "__main__":
+    main()
