@@ -183,7 +183,8 @@ def answer_attempt(
         for label in labels
     )  # fmt: skip
     session.commit()
-    pair_leases.release(_lease(household_id, snapshot))
+    # The lease is kept until it runs out, as for pairs (`labels.create_label`): a member whose next-attempt
+    # query read the candidates before this commit could otherwise still claim it, and answer it second.
     return StoredAnswer(NOTHING if shown is None else commands[shown].name, labels)
 
 
