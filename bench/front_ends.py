@@ -7,7 +7,9 @@ Per front end: a small VAR trained on the same Kuka views and Wordset training c
 thread each), then on the unheard tiers
 - nearest-command accuracy: how often a clip's f_S embedding is nearest the mean direction of its own
   command among the training clips (what a goal clip must do for the policy to head for the right block);
-- triplet accuracy on held-out views (another seed), as `varbot var eval` reports it;
+- triplet accuracy on held-out views (another seed), as `varbot var eval` reports it, and image → command:
+  how often a held-out view with a block under the gripper embeds nearest that block's command (f_I's side
+  of the reward);
 - ms per clip: CPU milliseconds (and wall) from WAV bytes to features, over the corpus's clips and over 1 s.
 A row with no training, `speech-embedding frozen`, reads the frozen embedding mean- and max-pooled over the
 clip, standardised, against the class centroids of the training clips: what the embedding knows before f_S
@@ -202,7 +204,7 @@ def print_table(result: dict) -> None:
     for tier in TIERS:
         short = tier.removeprefix("unheard-")
         columns += [f"{short}: nearest cmd", f"{short}: triplet"]
-    columns += ["CPU ms/clip", "CPU ms/1 s"]
+    columns += ["image → cmd", "CPU ms/clip", "CPU ms/1 s"]
     for column in columns:
         table.add_column(column, justify="left" if column == "front end" else "right")
     for name, row in result["rows"].items():
@@ -211,6 +213,7 @@ def print_table(result: dict) -> None:
             cells.append(f"{row[tier]['nearest_command_accuracy']:.1%}")
             triplet = row[tier].get("triplet_accuracy")
             cells.append("—" if triplet is None else f"{triplet:.1%}")
+        cells.append(f"{row['image_to_command']:.1%}" if "image_to_command" in row else "—")
         for key in ("cpu_ms_per_corpus_clip", "cpu_ms_per_one_second_clip"):
             cells.append(f"{row[key]:.1f}" if key in row else "—")
         table.add_row(*cells)
