@@ -11,7 +11,7 @@ async function drawPresets() {
   for (const [name, params] of Object.entries(presets)) {
     const id = `preset-${name}`;
     const hint = `${params.var_epochs} VAR epochs, ${params.policy_steps.toLocaleString()} policy steps, ${params.eval_episodes} test episodes`;
-    box.append(element("div", { class: "row" },
+    box.append(element("div", { class: "row choice" },
       element("input", { type: "radio", name: "preset", id, value: name, checked: name === "quick", style: "width:auto;min-height:0" }),
       element("label", { for: id, style: "margin:0" }, `${name} `, element("span", { class: "muted", text: `(${hint})` }))));
   }
