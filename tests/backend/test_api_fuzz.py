@@ -1,5 +1,6 @@
 """A bounded schemathesis pass over the OpenAPI schema: whatever a client sends, the API never answers 5xx,
-every status code it answers is documented for that operation, and every body matches its documented schema."""
+every status code it answers is documented for that operation, and every body matches its documented
+schema."""
 
 import pytest
 import schemathesis
