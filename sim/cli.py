@@ -16,7 +16,9 @@ def show(
     intent: int = typer.Option(0, "--intent", help="commanded target (0..3)"),
     size: int = typer.Option(96, "--size", help="image size in pixels"),
     seed: int = typer.Option(0, "--seed", help="scene seed"),
-    domain: str = typer.Option("none", "--domain", help="'none' (training room) or 'unseen' (shifted room)"),
+    domain: str = typer.Option(
+        "none", "--domain", help="'none' (training room), 'unseen' or 'lamplit' (the held-out rooms)"
+    ),
     oracle_steps: int = typer.Option(0, "--oracle-steps", help="let the oracle drive this many steps first"),
 ) -> None:
     """Render what the robot's camera sees after a reset (and optionally a few oracle steps)."""

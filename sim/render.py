@@ -10,7 +10,7 @@ from sim import world_id
 from sim.domain import DomainShift
 from sim.oracle import oracle_action
 
-DOMAINS = {"none": None, "unseen": DomainShift.unseen_room}
+DOMAINS = {"none": None, "unseen": DomainShift.unseen_room, "lamplit": DomainShift.lamplit_room}
 
 
 def domain_named(name: str) -> DomainShift | None:

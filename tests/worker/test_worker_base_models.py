@@ -81,6 +81,8 @@ def test_a_base_build_over_randomised_rooms_resumes_from_its_checkpoints(tmp_pat
     updates = [json.loads(line)["update"] for line in (_work(recipe) / "policy" / "metrics.jsonl").open()]
     assert updates == [1, 2], "one update of 24 steps, then the second run continued with update 2"
     assert again["recipe"]["room"] == "randomised" and again["room_ranges"]["camera_jitter_m"] > 0
+    assert again["policy_config"]["room"] == "randomised", "the policy's worlds drew rooms from the ranges"
+    assert json.loads((_work(recipe) / "policy" / "config.json").read_text())["room"] == "randomised"
     assert set(again["evaluation"]) == {"training", "unseen_room"}
     assert set(again["evaluation"]["unseen_room"]) >= {"unheard-easy", "unheard-real-voices"}
     record = BaseModel("kuka", tmp_path / "models" / "kuka").record
