@@ -12,7 +12,8 @@ Safety first:
   `with` block, also through an exception) stops the arm before disconnecting.
 
 `kortex_api` is a wheel Kinova ships from its own artifactory, not from PyPI; it is imported only on
-`connect()`. Tests hand the driver a fake of the few Kortex classes it uses (`api=`).
+`connect()`. Tests hand the driver a stand-in of the few Kortex classes it uses (`api=`) and of OpenCV's
+`VideoCapture` (`open_capture=`): `tests/sim/kortex_standin.py`. Nothing here has run against a real arm.
 """
 
 import collections
@@ -114,22 +115,28 @@ def centre_crop_resize(frame_bgr: np.ndarray, image_size: int) -> np.ndarray:
     return cv2.cvtColor(resized, cv2.COLOR_BGR2RGB)
 
 
+VideoCaptureFactory = Callable[[int | str], Any]  # cv2.VideoCapture, or what has its isOpened/read/release
+
+
 class FixedCamera:
     """A camera OpenCV can open (a device index such as 0, or a stream URL / file), opened on demand."""
 
-    def __init__(self, source: int | str, image_size: int = 96) -> None:
+    def __init__(
+        self, source: int | str, image_size: int = 96, open_capture: VideoCaptureFactory = cv2.VideoCapture
+    ) -> None:
         if not isinstance(source, int | str) or isinstance(source, bool):
             raise ValueError(f"camera source must be a device index or a stream URL, got {source!r}")
         if not 8 <= image_size <= 1024:
             raise ValueError(f"image_size must be between 8 and 1024 pixels, got {image_size}")
         self.source = source
         self.image_size = image_size
-        self._capture: cv2.VideoCapture | None = None
+        self._open_capture = open_capture
+        self._capture: Any = None
 
     def open(self) -> None:
         if self._capture is not None:
             return
-        capture = cv2.VideoCapture(self.source)
+        capture = self._open_capture(self.source)
         if not capture.isOpened():
             capture.release()
             raise CameraError(
@@ -171,6 +178,7 @@ class KortexArmDriver:
         tool_orientation_deg: tuple[float, float, float] = POINT_DOWN_DEG,
         gripper_position: float | None = 1.0,
         api: KortexApi | None = None,
+        open_capture: VideoCaptureFactory = cv2.VideoCapture,
     ) -> None:
         if not 0.0 < max_speed_m_s <= SPEED_CEILING_M_S:
             raise ValueError(f"max_speed_m_s must be in (0, {SPEED_CEILING_M_S}] m/s, got {max_speed_m_s}")
@@ -189,7 +197,7 @@ class KortexArmDriver:
         self.base_in_table_m = tuple(float(v) for v in base_in_table_m)
         self.tool_orientation_deg = tuple(float(v) for v in tool_orientation_deg)
         self.gripper_position = gripper_position
-        self.camera = FixedCamera(camera, image_size)
+        self.camera = FixedCamera(camera, image_size, open_capture)
         self._api = api
         self._transport: Any = None
         self._router: Any = None
@@ -376,11 +384,22 @@ class KortexArmDriver:
                 raise KortexMotionError(
                     f"{description}: the arm did not finish within {self.move_timeout_s} s"
                 )
+        except Exception as error:
+            if self._link_lost.is_set():  # the library's own error says less than this
+                raise KortexMotionError(self._lost_during(description)) from error
+            raise
         finally:
-            self._base.Unsubscribe(subscription)
+            if not self._link_lost.is_set():  # nothing gets through a lost link: do not mask the error
+                self._base.Unsubscribe(subscription)
         if self._link_lost.is_set():
-            raise KortexMotionError(f"{description}: the link to the arm was lost during the move")
+            raise KortexMotionError(self._lost_during(description))
         if outcome[0] == base_pb2.ACTION_ABORT:
             raise KortexMotionError(
                 f"{description}: the arm aborted the move (protection zone, joint limit, e-stop?)"
             )
+
+    def _lost_during(self, description: str) -> str:
+        return (
+            f"{description}: the link to the arm at {self.ip} was lost during the move (its controller stops "
+            f"the arm {CONNECTION_INACTIVITY_TIMEOUT_MS / 1000:g} s after losing the session)"
+        )

@@ -1,28 +1,59 @@
-"""A stand-in for the few `kortex_api` classes `sim.kortex_driver` uses, for tests only.
+"""A Kortex **stand-in** for tests: the few `kortex_api` classes `sim.kortex_driver` uses, moving the PyBullet
+Gen3 (`sim.kinova_blocks`) instead of a real arm, and an OpenCV `VideoCapture` stand-in returning its rendered
+camera. It is not Kinova's software and has never been compared with a real arm.
 
-It behaves like a Gen3 on the other end of the link as far as the driver can tell: messages carry only the
-fields the real protobuf messages have (a misspelt field raises AttributeError), actions end with a
-notification from another thread, and the arm can be told to fail the next action (raise, abort, or never
-finish) or to lose the link. Every message sent is recorded in `FakeArm.sent`, and every rule a real
-deployment relies on (session first, poses inside the workspace box at the gripper height, a speed limit on
-every move) is checked, with breaches collected in `FakeArm.violations`.
+Names, signatures and message fields follow Kinova's Python API as its public repository shows it
+(Kinovarobotics/Kinova-kortex2_Gen3_G3L, `api_python/examples` and `api_python/doc/markdown/references`):
+- set-up as `examples/utilities.py`: `TCPTransport()`, `RouterClient(transport, error_callback)`,
+  `SessionManager(router).CreateSession(Session_pb2.CreateSessionInfo)` with username, password,
+  session_inactivity_timeout, connection_inactivity_timeout; `CloseSession(RouterClientSendOptions)` with
+  timeout_ms; `transport.connect(ip, port)` / `disconnect()`;
+- `BaseClient(router)` as `102-Movement_high_level/01-move_angular_and_cartesian.py`: SetServoingMode,
+  ReadAllActions(RequestedActionType).action_list[i].name / .handle, ExecuteActionFromReference(handle),
+  ExecuteAction(Action) with action.reach_pose.target_pose.{x, y, z, theta_x, theta_y, theta_z},
+  OnNotificationActionTopic(callback, NotificationOptions) -> handle, Unsubscribe(handle), Stop();
+- enum values from the reference pages: ServoingMode SINGLE_LEVEL_SERVOING = 2, ActionType REACH_JOINT_ANGLES
+  = 7, ActionEvent ACTION_END = 1 / ACTION_ABORT = 2 / ACTION_START = 4, GripperMode GRIPPER_POSITION = 3;
+  ActionNotification's fields (action_event, handle, timestamp, user_handle, abort_details, connection).
+
+Guessed (marked GUESS below): the speed constraint's field names (`constraint.speed.translation` /
+`.orientation`, from CartesianSpeed's reference page, not from an example); that `GetMeasuredCartesianPose`
+returns a Pose in the base frame (examples read `BaseCyclicClient.RefreshFeedback().base.tool_pose_x`
+instead: the driver does not use BaseCyclicClient or twist commands, so neither is stood in for); the
+exception classes (`KClientException` for a link that is down, `KServerException` for a refused call: their
+messages here are made up); that the router's error callback is called on the router's thread when the link
+drops; that the arm's controller stops the arm by itself once `connection_inactivity_timeout` passes without
+the client (what the session option is documented for); that the base frame is the table frame (a real arm
+needs `base_in_table_m`); and when a reach ends (here: once the simulated gripper is within 0.5 mm of the
+target, or after 1 s of simulated time).
+
+As the fake it replaces, it checks the rules a deployment relies on (session first, poses inside the
+workspace box at the gripper height, a speed limit on every move): breaches go to `StandInArm.violations`;
+every message sent is in `StandInArm.sent`; the next action can be told to fail (raise, abort, never finish);
+the link can be lost now or at the n-th move.
 """
 
 import copy
 import threading
 from dataclasses import dataclass, field
-from functools import partial
 from types import SimpleNamespace
 from typing import Any, ClassVar
 
+import cv2
+import numpy as np
+
 from sim.arm import GRIPPER_HEIGHT_M, WORKSPACE_X_M, WORKSPACE_Y_M
+from sim.kinova_blocks import KinovaBlocksEnv
 from sim.kortex_driver import KortexApi
 
 SINGLE_LEVEL_SERVOING = 2
 REACH_JOINT_ANGLES = 7
-ACTION_START, ACTION_END, ACTION_ABORT = 1, 2, 3
+ACTION_END, ACTION_ABORT, ACTION_START = 1, 2, 4
 GRIPPER_POSITION = 3
-HOME_HANDLE = 1042
+HOME_HANDLE = 1042  # GUESS: a real arm's handle is an ActionHandle message; the driver only passes it back
+REACHED_WITHIN_M = 5e-4  # a reach ends once the simulated gripper is this close to its target ...
+MAX_REACH_PERIODS = 60  # ... or after this many control periods (1 s of simulated time)
+WEBCAM_WIDTH_PAD = 1 / 6  # each side: the stand-in's frames are 4:3 like a webcam's, the render in the middle
 
 
 class _Message:
@@ -41,7 +72,7 @@ class Pose(_Message):
 
 
 class CartesianSpeed(_Message):
-    __slots__ = ("orientation", "translation")
+    __slots__ = ("orientation", "translation")  # GUESS: from the reference page, not an example
 
 
 class CartesianTrajectoryConstraint(_Message):
@@ -55,8 +86,12 @@ class ConstrainedPose(_Message):
 
 
 class Action(_Message):
-    __slots__ = ("application_data", "name", "reach_pose")
+    __slots__ = ("application_data", "handle", "name", "reach_pose")
     _nested: ClassVar[dict[str, type]] = {"reach_pose": ConstrainedPose}
+
+
+class ActionNotification(_Message):
+    __slots__ = ("abort_details", "action_event", "connection", "handle", "timestamp", "user_handle")
 
 
 class Finger(_Message):
@@ -100,8 +135,12 @@ class RouterClientSendOptions(_Message):
     __slots__ = ("andForget", "delay_ms", "timeout_ms")
 
 
-class FakeKortexError(Exception):
-    """What the fake raises where kortex_api would raise KServerException / KClientException."""
+class KClientException(Exception):
+    """GUESS: what kortex_api raises when the client side fails (no link)."""
+
+
+class KServerException(Exception):
+    """GUESS: what kortex_api raises when the arm refuses a call."""
 
 
 @dataclass
@@ -111,27 +150,37 @@ class Sent:
 
 
 @dataclass
-class FakeArm:
-    """The arm's side of the link: its state, the messages it received and the rules they broke."""
+class StandInArm:
+    """The arm's side of the link: a simulated Gen3 over the block table, the messages it received and the
+    rules they broke."""
 
+    image_size: int = 32
+    seed: int = 0  # where the blocks lie (a person laid them out before the session)
     speed_ceiling_m_s: float = 0.25
-    pose: list[float] = field(default_factory=lambda: [0.45, 0.0, 0.43])
     sent: list[Sent] = field(default_factory=list)
     violations: list[str] = field(default_factory=list)
     fail_next: str | None = None  # "raise", "abort" or "silent" (never finishes)
+    link_up: bool = True
     transport_connected: bool = False
     session_open: bool = False
-    link_up: bool = True
+    connection_inactivity_timeout_ms: int = 0
+    stopped_by_controller: bool = False  # the arm stopped itself: the link was down past the session timeout
+    moves_until_disconnect: int | None = None  # the link drops at that ExecuteAction (1: the next one)
     _subscribers: dict[int, Any] = field(default_factory=dict)
     _router_error_callback: Any = None
 
+    def __post_init__(self) -> None:
+        self.world = KinovaBlocksEnv(image_size=self.image_size)
+        self.world.reset(seed=self.seed)
+        self.world.arm.home()
+
     def api(self) -> KortexApi:
         return KortexApi(
-            TCPTransport=partial(FakeTransport, self),
-            RouterClient=partial(FakeRouterClient, self),
+            TCPTransport=lambda: TCPTransport(self),
+            RouterClient=RouterClient,
             RouterClientSendOptions=RouterClientSendOptions,
-            SessionManager=partial(FakeSessionManager, self),
-            BaseClient=partial(FakeBaseClient, self),
+            SessionManager=SessionManager,
+            BaseClient=BaseClient,
             Base_pb2=SimpleNamespace(
                 Action=Action,
                 GripperCommand=GripperCommand,
@@ -147,6 +196,13 @@ class FakeArm:
             ),
             Session_pb2=SimpleNamespace(CreateSessionInfo=CreateSessionInfo),
         )
+
+    def video_capture(self, source: int | str) -> "StandInVideoCapture":
+        """What the driver gets for `cv2.VideoCapture(source)`: the simulated camera."""
+        return StandInVideoCapture(self, source)
+
+    def close(self) -> None:
+        self.world.close()
 
     # what tests look at
     def methods(self) -> list[str]:
@@ -168,16 +224,24 @@ class FakeArm:
             if entry.method == "ExecuteAction"
         ]
 
+    def under_gripper(self) -> int | None:
+        """The block under the gripper now (the simulator's ground truth: tests only)."""
+        return self.world.heard()
+
     def lose_link(self) -> None:
-        """The cable is pulled: the router reports the error, and nothing gets through any more."""
+        """The cable is pulled: the router reports the error, nothing gets through any more, and the arm's
+        controller stops the arm once the session's connection inactivity timeout has passed."""
         self.link_up = False
+        if self.session_open and self.connection_inactivity_timeout_ms > 0:
+            self.world.arm.stop()
+            self.stopped_by_controller = True
         if self._router_error_callback is not None:
-            self._router_error_callback(FakeKortexError("connection lost"))
+            self._router_error_callback(KClientException("connection lost"))
 
     # what the clients call
     def receive(self, method: str, message: Any = None, *, needs_session: bool = True) -> None:
         if not self.link_up:
-            raise FakeKortexError(f"{method}: not connected")
+            raise KClientException(f"{method}: not connected")
         self.sent.append(Sent(method, copy.deepcopy(message)))
         if not self.transport_connected:
             self.violations.append(f"{method} sent before the transport was connected")
@@ -189,19 +253,42 @@ class FakeArm:
             self._check_reach(action)
         failure, self.fail_next = self.fail_next, None
         if failure == "raise":
-            raise FakeKortexError("ExecuteAction rejected by the arm")
+            raise KServerException("ExecuteAction rejected by the arm")
         if failure == "silent":
             return
-        if failure is None and action is not None:
-            target = action.reach_pose.target_pose
-            self.pose = [target.x, target.y, target.z]
+        if failure is None:
+            self._move(action)
         event = ACTION_ABORT if failure == "abort" else ACTION_END
         threading.Thread(target=self._notify, args=(event,), daemon=True).start()
 
+    def count_down_to_disconnect(self) -> None:
+        if self.moves_until_disconnect is None:
+            return
+        self.moves_until_disconnect -= 1
+        if self.moves_until_disconnect <= 0:
+            self.moves_until_disconnect = None
+            self.lose_link()
+            raise KClientException("ExecuteAction: connection lost")
+
+    def _move(self, action: Action | None) -> None:
+        """The simulated Gen3 follows the action: "Home" is its stored joint pose, a reach its target."""
+        arm = self.world.arm
+        if action is None:
+            arm.home()
+            return
+        target = np.array([action.reach_pose.target_pose.x, action.reach_pose.target_pose.y])
+        arm.move_target(*(target - arm.target_xy))
+        for _ in range(MAX_REACH_PERIODS):
+            if np.linalg.norm(np.asarray(arm.gripper_xy()) - target) < REACHED_WITHIN_M:
+                return
+            arm.move_target(0.0, 0.0)
+
     def _notify(self, event: int) -> None:
         for callback in list(self._subscribers.values()):
-            callback(SimpleNamespace(action_event=ACTION_START, handle=None))
-            callback(SimpleNamespace(action_event=event, handle=None))
+            for kind in (ACTION_START, event):
+                notification = ActionNotification()
+                notification.action_event = kind
+                callback(notification)
 
     def _check_reach(self, action: Action) -> None:
         target = action.reach_pose.target_pose
@@ -220,13 +307,34 @@ class FakeArm:
             self.violations.append(f"orientation speed {speed.orientation} is not limited")
 
 
-class FakeTransport:
-    def __init__(self, arm: FakeArm) -> None:
+class StandInVideoCapture:
+    """`cv2.VideoCapture`'s isOpened / read / release over the simulated table camera: BGR frames, 4:3, the
+    world's render in the middle (so the driver's centre crop gives back exactly what the simulator sees)."""
+
+    def __init__(self, arm: StandInArm, source: int | str) -> None:
+        self.arm, self.source, self.opened = arm, source, True
+
+    def isOpened(self) -> bool:
+        return self.opened
+
+    def read(self) -> tuple[bool, np.ndarray | None]:
+        if not self.opened:
+            return False, None
+        render = cv2.cvtColor(self.arm.world.render(), cv2.COLOR_RGB2BGR)
+        pad = round(render.shape[1] * WEBCAM_WIDTH_PAD)
+        return True, cv2.copyMakeBorder(render, 0, 0, pad, pad, cv2.BORDER_CONSTANT, value=(40, 40, 40))
+
+    def release(self) -> None:
+        self.opened = False
+
+
+class TCPTransport:
+    def __init__(self, arm: StandInArm) -> None:
         self.arm = arm
 
     def connect(self, ip: str, port: int) -> None:
         if not self.arm.link_up:
-            raise FakeKortexError(f"no arm answers at {ip}:{port}")
+            raise KClientException(f"no arm answers at {ip}:{port}")
         self.arm.transport_connected = True
 
     def disconnect(self) -> None:
@@ -234,22 +342,21 @@ class FakeTransport:
         self.arm.session_open = False
 
 
-class FakeRouterClient:
-    def __init__(self, arm: FakeArm, transport: FakeTransport, error_callback: Any) -> None:
-        if not isinstance(transport, FakeTransport):
-            arm.violations.append("RouterClient built without the transport")
-        arm._router_error_callback = error_callback
-        self.arm = arm
+class RouterClient:
+    def __init__(self, transport: TCPTransport, error_callback: Any) -> None:
+        self.arm = transport.arm
+        self.arm._router_error_callback = error_callback
 
 
-class FakeSessionManager:
-    def __init__(self, arm: FakeArm, router: FakeRouterClient) -> None:
-        self.arm = arm
+class SessionManager:
+    def __init__(self, router: RouterClient) -> None:
+        self.arm = router.arm
 
     def CreateSession(self, info: CreateSessionInfo) -> None:
         self.arm.receive("CreateSession", info, needs_session=False)
         if not info.username or info.connection_inactivity_timeout <= 0:
             self.arm.violations.append("session without credentials or connection timeout")
+        self.arm.connection_inactivity_timeout_ms = info.connection_inactivity_timeout
         self.arm.session_open = True
 
     def CloseSession(self, options: RouterClientSendOptions) -> None:
@@ -257,9 +364,9 @@ class FakeSessionManager:
         self.arm.session_open = False
 
 
-class FakeBaseClient:
-    def __init__(self, arm: FakeArm, router: FakeRouterClient) -> None:
-        self.arm = arm
+class BaseClient:
+    def __init__(self, router: RouterClient) -> None:
+        self.arm = router.arm
         self._next_subscription = 1
 
     def SetServoingMode(self, mode: ServoingModeInformation) -> None:
@@ -278,6 +385,7 @@ class FakeBaseClient:
         self.arm.execute(None)
 
     def ExecuteAction(self, action: Action) -> None:
+        self.arm.count_down_to_disconnect()
         self.arm.receive("ExecuteAction", action)
         self.arm.execute(action)
 
@@ -294,11 +402,12 @@ class FakeBaseClient:
 
     def Stop(self) -> None:
         self.arm.receive("Stop")
+        self.arm.world.arm.stop()
 
     def GetMeasuredCartesianPose(self) -> Pose:
         self.arm.receive("GetMeasuredCartesianPose")
         pose = Pose()
-        pose.x, pose.y, pose.z = self.arm.pose
+        pose.x, pose.y, pose.z = (float(v) for v in self.arm.world.arm.gripper_position())
         return pose
 
     def SendGripperCommand(self, command: GripperCommand) -> None:
