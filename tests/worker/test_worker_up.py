@@ -9,6 +9,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,6 +18,8 @@ import pytest
 from conftest import PASSWORD, wait_until
 
 from varbot.launched import LaunchedUp, alive
+from varbot.services import Service, Stack
+from varbot.supervisor import STABLE_AFTER_S, Supervisor
 
 pytestmark = pytest.mark.slow
 RESTART_DELAY_S = 5  # long enough to see the API answer while a part is away
@@ -83,6 +86,30 @@ def test_a_killed_worker_and_redis_are_restarted_while_the_api_and_the_rest_go_o
     assert alice.post(f"/robots/{robot}/snapshots:capture", json={"count": 2}).status_code == 202
     assert {name: up.child(name).pid for name in steady} == steady, "nothing else was restarted"
     alice.close()
+
+
+def test_a_part_that_keeps_dying_is_restarted_after_pauses_that_double_until_it_stays_up(
+    tmp_path: Path,
+) -> None:
+    said: list[str] = []
+    stack = Stack(tmp_path, dict(os.environ))
+    dying = Service("dying", [sys.executable, "-c", "raise SystemExit(3)"], is_ready=lambda: True)
+    stack.services.append(dying)
+    dying.start(tmp_path, stack.env)
+    supervisor = Supervisor(stack, say=said.append)
+    now = time.monotonic()
+    for restart, pause_s in enumerate((1, 2, 4, 8, 1), start=1):
+        if restart == 5:
+            now += STABLE_AFTER_S  # it ran a minute before this death: the first pause again
+        assert dying.process is not None
+        dying.process.wait(30)
+        supervisor.tick(now)
+        assert said[-1].startswith(f"dying stopped unexpectedly (exit code 3); restarting it in {pause_s} s")
+        supervisor.tick(now + pause_s - 0.1)
+        assert not dying.running and len(said) == 2 * restart - 1, "restarted before its pause was over"
+        now += pause_s
+        supervisor.tick(now)
+        assert said[-1] == f"dying restarted (restart {restart})"
 
 
 def test_ctrl_c_stops_every_child_and_saves_redis(up: LaunchedUp) -> None:
