@@ -46,6 +46,22 @@ def get_blob_store() -> BlobStore:
     return _local_blob_store(str(get_settings().blob_path))
 
 
+def forget_cached_settings() -> None:
+    """Drop everything built from the settings (engine, sessions, broker clients, blob store), so the next
+    use reads the environment afresh: for a process that points itself at another database or Redis."""
+    from backend import broker
+
+    for cached in (
+        get_settings,
+        get_engine,
+        get_session_factory,
+        broker.celery_client,
+        broker.redis_client,
+        _local_blob_store,
+    ):
+        cached.cache_clear()
+
+
 def get_sessions() -> Callable[[], Session]:
     """For endpoints that outlive one session (streams): a factory for short-lived sessions."""
     return get_session_factory()

@@ -11,10 +11,9 @@ class SceneHousehold:
 
 
 def clear_backend_caches() -> None:
-    from backend import broker, db, settings
+    from backend.deps import forget_cached_settings
 
-    for cached in (settings.get_settings, db.get_engine, db.get_session_factory, broker.redis_client):
-        cached.cache_clear()
+    forget_cached_settings()
 
 
 def eventually(condition, timeout: float, what: str) -> None:  # type: ignore[no-untyped-def]

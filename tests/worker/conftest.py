@@ -35,17 +35,9 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 def clear_backend_caches() -> None:
-    from backend import broker, db, deps, settings
+    from backend.deps import forget_cached_settings
 
-    for cached in (
-        settings.get_settings,
-        db.get_engine,
-        db.get_session_factory,
-        broker.celery_client,
-        broker.redis_client,
-        deps._local_blob_store,
-    ):
-        cached.cache_clear()
+    forget_cached_settings()
 
 
 @dataclass
