@@ -93,7 +93,7 @@ def test_a_flat_line_gets_an_axis_around_it(newcomer, stack: Stack) -> None:
     open_page(page, f"{stack.url}/progress")
     success = page.locator(f"[data-run-id='{run}'] svg.chart[aria-label^='Success']")
     assert (success.get_attribute("data-y-from"), success.get_attribute("data-y-to")) == ("0", "1")  # a rate
-    ticks = success.locator("text.muted-ink").all_text_contents()
+    ticks = success.locator("text.y-tick").all_text_contents()
     assert ticks[0] == "0" and ticks[-1] == "1", ticks
     axis = page.evaluate(
         """async () => { const { yAxis } = await import('/static/js/chart.js');

@@ -54,9 +54,14 @@ export function lineChart(series, { title = "", width = 480, height = 160, range
   const sx = (x) => pad.l + ((x - x0) / (x1 - x0 || 1)) * (width - pad.l - pad.r);
   const sy = (y) => height - pad.b - ((y - y0) / (y1 - y0)) * (height - pad.t - pad.b);
   for (const y of axis.ticks) {
-    const text = svg("text", { x: 4, y: sy(y) + 4, "font-size": 11, class: "muted-ink" });
+    const text = svg("text", { x: 4, y: sy(y) + 4, "font-size": 11, class: "muted-ink y-tick" });
     text.textContent = tickText(y);
     root.append(text, svg("line", { x1: pad.l, x2: width - pad.r, y1: sy(y), y2: sy(y), class: "gridline" }));
+  }
+  for (const [x, anchor] of [[x0, "start"], [x1, "end"]]) {
+    const text = svg("text", { x: sx(x), y: height - 4, "font-size": 11, "text-anchor": anchor, class: "muted-ink x-tick" });
+    text.textContent = tickText(x);
+    root.append(text);
   }
   root.dataset.yFrom = String(y0);
   root.dataset.yTo = String(y1);
