@@ -83,8 +83,10 @@ def on_screen(page: object, selector: str) -> bool:
 
 
 def shoot(page: object, name: str) -> None:
+    """The whole page, except Label's: there what fits on the screen is the point."""
     SCREENS.mkdir(parents=True, exist_ok=True)
-    page.screenshot(path=str(SCREENS / f"{name}.png"))  # type: ignore[attr-defined]
+    whole = not name.startswith("label")
+    page.screenshot(path=str(SCREENS / f"{name}.png"), full_page=whole)  # type: ignore[attr-defined]
 
 
 @pytest.mark.parametrize(("size", "viewport"), [("phone", PHONE), ("desktop", DESKTOP)])
