@@ -32,6 +32,8 @@ from worker.capture import capture_views, png
 from worker.run_context import materialise
 
 REPLAY_FRAMES = 6  # frames of the replay, the final view last, spread over the attempt's second half
+MakeEnv = Callable[[int, int | None], Any]  # (image_size, max_steps) -> the robot's Gymnasium env
+Capture = Callable[[int, int, int, str | None], dict]  # (robot_id, household_id, count, task_id) -> result
 
 
 class AttemptRefused(ValueError):
@@ -59,9 +61,13 @@ def try_commands(
     random_views: int,
     commands: list[str],
     task_id: str | None = None,
+    make_env: MakeEnv | None = None,
+    capture: Capture = capture_views,
 ) -> dict[str, Any]:
     """`attempts` attempts spread evenly over the command keys `commands`, then `random_views` random views.
-    Raises AttemptRefused for a robot with no model, a household with no recordings, a command with none."""
+    Raises AttemptRefused for a robot with no model, a household with no recordings, a command with none.
+    A simulated robot plays in its world; a real one (`worker.real_arm`) passes its `make_env` and
+    `capture`."""
     import torch
 
     from learning.var.checkpoint import front_end_of, load_var
@@ -70,7 +76,7 @@ def try_commands(
     blobs = get_blob_store()
     report = _reporter(task_id, robot_id, random_views)
     with get_session_factory()() as session:
-        robot = _simulated_robot(session, robot_id, household_id)
+        robot = _robot(session, robot_id, household_id, simulated=make_env is None)
         world = world_of_kind(robot.kind)
         asked = _commands(session, household_id, commands)
         model = _robot_model(session, blobs, robot, world)
@@ -79,7 +85,7 @@ def try_commands(
         rng = np.random.default_rng(secrets.randbits(31))
         created = []
         report("running", f"trying {attempts} times: {', '.join(c.name for c in asked)}", 0)
-        with _player(model.policy_path, var, world, room_of(robot.settings or {})) as play:
+        with _player(model.policy_path, var, world, room_of(robot.settings or {}), make_env) as play:
             for index in range(attempts):
                 command = asked[index % len(asked)]
                 clip_id = int(rng.choice(command.clip_ids))
@@ -87,7 +93,7 @@ def try_commands(
                 created.append(_store(session, blobs, robot, command, clip_id, attempt, model, task_id).id)
                 report("running", f"{len(created)} of {attempts} attempts stored", len(created))
     if random_views:
-        capture_views(robot_id, household_id, random_views, task_id)
+        capture(robot_id, household_id, random_views, task_id)
     report(
         "done", f"{len(created)} attempts and {random_views} random views are ready to label", len(created)
     )
@@ -114,13 +120,14 @@ def report_refusal(task_id: str | None, robot_id: int, state: str, message: str)
     _reporter(task_id, robot_id, 0)(state, message, 0)
 
 
-def _simulated_robot(session: Any, robot_id: int, household_id: int) -> models.Robot:
+def _robot(session: Any, robot_id: int, household_id: int, simulated: bool) -> models.Robot:
     robot = session.get(models.Robot, robot_id)
     if robot is None or robot.household_id != household_id:
         raise AttemptRefused(f"robot {robot_id} of household {household_id} does not exist")
-    if not models.RobotKind(robot.kind).simulated:
+    if models.RobotKind(robot.kind).simulated != simulated:
         raise AttemptRefused(
-            f"robot {robot_id} is a real {robot.kind}: attempts are made by simulated robots"
+            f"robot {robot_id} is a {robot.kind}: its attempts are made "
+            + ("by simulated robots" if simulated else "on a real arm (worker.real_arm)")
         )
     return robot
 
@@ -187,8 +194,11 @@ def _feature_kind(world: str) -> str:
 
 
 @contextlib.contextmanager
-def _player(policy_path: Path, var: Any, world: str, room: Any) -> Iterator[Callable[[Any, int], Attempt]]:
-    """A function playing one deterministic episode of the policy toward a goal, in the robot's room."""
+def _player(
+    policy_path: Path, var: Any, world: str, room: Any, make_env: MakeEnv | None = None
+) -> Iterator[Callable[[Any, int], Attempt]]:
+    """A function playing one deterministic episode of the policy toward a goal, in the robot's room (or,
+    with `make_env`, in the env it makes: a real arm)."""
     import torch
 
     from learning.rl.envs import make_env_fn, world_id
@@ -199,7 +209,11 @@ def _player(policy_path: Path, var: Any, world: str, room: Any) -> Iterator[Call
     policy.eval()
     config, run_config = policy.config, payload["config"]
     max_steps = run_config.get("max_episode_steps")
-    env = make_env_fn(world_id(world), int(run_config["image_size"]), "final", max_steps, None, room)()
+    image_size = int(run_config["image_size"])
+    if make_env is not None:
+        env = make_env(image_size, max_steps)
+    else:
+        env = make_env_fn(world_id(world), image_size, "final", max_steps, None, room)()
 
     @torch.inference_mode()
     def play(goal: tuple[Any, np.ndarray], seed: int) -> Attempt:
@@ -219,10 +233,10 @@ def _player(policy_path: Path, var: Any, world: str, room: Any) -> Iterator[Call
             observation, _, terminated, truncated, info = env.step(mean.clamp(-1.0, 1.0)[0].numpy())
             frames.append(observation["image"])
             start, done = torch.zeros(1), bool(terminated or truncated)
-        heard = int(info["heard"])
+        heard = info["heard"]  # None on a real arm (no ground truth), -1 for nothing in a simulated one
         return Attempt(
             _replay(frames), [float(v) for v in np.asarray(observation["state"]).ravel()],
-            None if heard < 0 else heard,
+            None if heard is None or heard < 0 else int(heard),
         )  # fmt: skip
 
     try:

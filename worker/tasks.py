@@ -70,10 +70,13 @@ def evaluate(self: Task, run_id: int) -> str:
 
 @app.task(name=broker.TASK_CAPTURE_SNAPSHOTS, **_ROBOT)
 def capture_snapshots(self: Task, robot_id: int, household_id: int, count: int) -> dict:
-    """Render `count` camera views from random poses of a simulated robot into snapshots."""
+    """Render `count` camera views from random poses of a simulated robot into snapshots (a real arm:
+    its camera's views, `worker.real_arm`)."""
     from worker.capture import capture_views
+    from worker.real_arm import capture_arm_views, is_real_arm
 
-    result = capture_views(robot_id, household_id, count, task_id=self.request.id)
+    capture = capture_arm_views if is_real_arm(robot_id) else capture_views
+    result = capture(robot_id, household_id, count, task_id=self.request.id)
     logger.info("captured %s views for robot %s", result["created"], robot_id)
     return {k: v for k, v in result.items() if k != "snapshot_ids"}
 
@@ -86,8 +89,10 @@ def try_commands(
     attempt's final view becomes a snapshot to judge, with its replay; then `random_views` random views.
     What cannot work (no model, no recordings) ends the task as refused, saying what to do."""
     from worker.attempts import AttemptRefused, report_refusal
-    from worker.attempts import try_commands as attempt
+    from worker.attempts import try_commands as try_in_world
+    from worker.real_arm import is_real_arm, try_arm_commands
 
+    attempt = try_arm_commands if is_real_arm(robot_id) else try_in_world
     try:
         result = attempt(robot_id, household_id, attempts, random_views, commands, task_id=self.request.id)
     except AttemptRefused as refusal:
