@@ -138,6 +138,10 @@ def show() -> None:
     for world in ("kuka", "kinova", "turtlebot"):
         try:
             base = find_base(world)
-            typer.echo(f"{world}: {base.folder} ({base.record.get('built_at', 'no record')})")
+            record = base.record
+            made = record.get("built_at") or ("adopted" if "adopted_from" in record else "no record")
+            rooms = record.get("recipe", {}).get("room", "training")
+            front_end = record.get("front_end", "mfcc")
+            typer.echo(f"{world}: {base.folder} ({made}; trained in rooms: {rooms}; front end: {front_end})")
         except BaseModelMissing as missing:
             typer.echo(f"{world}: {missing}")

@@ -93,3 +93,9 @@ def _work(recipe) -> Path:  # type: ignore[no-untyped-def]
     from core.paths import data_dir
 
     return data_dir() / "base_build" / recipe.name
+
+
+def test_show_names_each_worlds_base_model_with_its_rooms_and_front_end() -> None:
+    result = CliRunner().invoke(app, ["models", "show"])
+    assert result.exit_code == 0, result.output
+    assert f"kuka: {SHIPPED} (adopted; trained in rooms: training; front end: mfcc)" in result.output
