@@ -1,4 +1,5 @@
 import { api } from "../api.js";
+import { kindWords, stageWords, statusWords } from "../runs.js";
 import { element, pageFailed, pageReady, robotPicker, say, startPage, when } from "../shell.js";
 
 const $ = (id) => document.getElementById(id);
@@ -34,7 +35,7 @@ async function drawActiveRuns() {
         }
         drawActiveRuns();
       } });
-    list.append(element("li", { class: "row" }, element("span", { text: `Run ${run.id} · ${run.kind} · ${run.status} · ${run.stage} · ${Math.round(run.progress * 100)}%` }), cancel));
+    list.append(element("li", { class: "row" }, element("span", { text: `Run ${run.id} (${kindWords(run.kind)}) · ${statusWords(run.status)}, ${stageWords(run.status === "queued" ? "queued" : run.stage)} · ${Math.floor(Math.min(run.progress, 0.99) * 100)}%` }), cancel));
   }
 }
 

@@ -1,5 +1,6 @@
 import { api } from "../api.js";
 import { beforeAfterChart, lineChart } from "../chart.js";
+import { kindWords, stageWords, statusWords } from "../runs.js";
 import { element, pageFailed, pageReady, startPage, when } from "../shell.js";
 
 const runs = new Map(); // id → latest RunPublic
@@ -9,27 +10,6 @@ const LIVE_METRIC = /loss|success|accuracy|reward|return/i;
 
 const X_KEYS = ["epoch", "update", "env_steps", "step"];
 const STAGE_NAMES = { var_finetune: "VAR", policy_improve: "policy", evaluate: "evaluation" };
-// What each stage, kind and status means, in words (worker/progress.py STAGE_WEIGHTS names the stages).
-const STAGE_WORDS = {
-  queued: "waiting for a training worker",
-  starting: "getting ready",
-  var_finetune: "learning your words",
-  policy_improve: "practising in the simulator",
-  evaluate: "testing the new version against the one in use",
-  promoting: "deciding which version to keep",
-  done: "done",
-  succeeded: "done",
-  failed: "stopped by an error",
-  cancelled: "cancelled",
-};
-const KIND_WORDS = {
-  finetune: "learn your words, practise, test",
-  var_finetune: "learn your words, test",
-  policy_improve: "practise, test",
-  evaluate: "test the version in use",
-};
-const STATUS_WORDS = { queued: "waiting", running: "running", succeeded: "finished", failed: "failed", cancelled: "cancelled" };
-const stageWords = (stage) => STAGE_WORDS[stage] || stage.replaceAll("_", " ");
 
 function isNumberList(value) {
   return Array.isArray(value) && value.length > 1 && value.every((v) => Number.isFinite(v) || (Array.isArray(v) && v.length === 2));
@@ -162,12 +142,12 @@ function draw(run) {
   const fraction = run.status === "succeeded" ? 1 : run.status === "running" || run.status === "queued" ? Math.min(run.progress, 0.99) : run.progress;
   const percent = Math.floor(fraction * 100);
   const stage = stageWords(run.status === "running" ? run.stage : run.status === "queued" ? "queued" : run.status);
-  const kind = KIND_WORDS[run.kind] || run.kind.replaceAll("_", " ");
+  const kind = kindWords(run.kind);
   card.innerHTML = "";
   card.append(
     element("div", { class: "row" },
       element("h2", { id: `run-${run.id}-title`, text: `Run ${run.id}: ${kind} (${run.preset})` }),
-      element("span", { class: `status-pill ${run.status}`, text: STATUS_WORDS[run.status] || run.status })),
+      element("span", { class: `status-pill ${run.status}`, text: statusWords(run.status) })),
     element("p", { class: "muted", text: `Stage: ${stage} · ${percent}%${timeLeft(run, fraction)} · started ${when(run.started_at || run.created_at)}` }),
     element("progress", { class: "bar", max: 1, value: fraction, "aria-label": `Run ${run.id} progress`, "aria-valuetext": `${percent}% — ${stage}` }),
   );
