@@ -77,6 +77,16 @@ def load_policy(path: Path) -> tuple[Policy, dict[str, Any]]:
     return policy.eval(), payload
 
 
+def load_initial_policy(policy: Policy, path: Path) -> None:
+    """Start a run from the weights of an earlier one (self-improvement); the networks must be the same."""
+    payload = read_policy_checkpoint(path)
+    if PolicyConfig(**payload["policy_config"]) != policy.config:
+        raise ValueError(
+            f"{path} holds a policy for {payload['policy_config']}, this run needs {policy.config.to_dict()}"
+        )
+    policy.load_state_dict(payload["policy"])
+
+
 def write_run_checkpoint(trainer: "PPOTrainer", path: Path) -> Path:
     """Atomically to `path`; at every `checkpoint_every` updates also to a numbered copy beside it."""
     payload = {

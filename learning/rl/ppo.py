@@ -34,10 +34,11 @@ import torch
 from torch import nn
 
 from core.rooms import world_room
-from learning.rl.checkpoints import (  # CHECKPOINT_KIND, load_policy: callers reach them through here
+from learning.rl.checkpoints import (  # the F401 ones: callers reach them through this module
     CHECKPOINT_KIND,  # noqa: F401
+    load_initial_policy,
     load_policy,  # noqa: F401
-    read_policy_checkpoint,
+    read_policy_checkpoint,  # noqa: F401
     restore_run,
     with_legacy_run_options,
     write_run_checkpoint,
@@ -258,7 +259,7 @@ class PPOTrainer:
         if c.init_encoders is not None:
             self.label_counts.update(load_encoders_into(self.policy, c.init_encoders))
         if self.init_policy is not None:
-            self._load_initial_policy(self.init_policy)
+            load_initial_policy(self.policy, self.init_policy)
         self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=c.learning_rate, eps=1e-5)
         self.goal_source = goal_source(c.goal_encoder, self.goals)
         self.hidden = self.policy.initial_state(c.num_envs)
@@ -279,15 +280,6 @@ class PPOTrainer:
             bounded_mean=c.bounded_mean,
             goal_match=c.goal_match,
         )
-
-    def _load_initial_policy(self, path: Path) -> None:
-        payload = read_policy_checkpoint(path)
-        if PolicyConfig(**payload["policy_config"]) != self.policy.config:
-            raise ValueError(
-                f"{path} holds a policy for {payload['policy_config']}, this run needs "
-                f"{self.policy.config.to_dict()}"
-            )
-        self.policy.load_state_dict(payload["policy"])
 
     def close(self) -> None:
         if self.envs is not None:
