@@ -48,6 +48,9 @@ def train(
             help="Curriculum: share of episodes whose target favours low recent return (0: uniform)."
         ),
     ] = 0.5,
+    room: Annotated[
+        str, typer.Option(help="training, or randomised: a room per episode from core.rooms.RoomRanges")
+    ] = "training",
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
@@ -80,6 +83,7 @@ def train(
         num_minibatches=2 if envs % 2 == 0 else 1,
         seed=seed,
         hard_target_share=hard_target_share,
+        room=room,
     )
     run_dir = run_dir or data_dir() / "rl" / "runs" / f"{world}-{sounds}-{method}"
     try:
