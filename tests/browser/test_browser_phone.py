@@ -11,7 +11,7 @@ from newcomers import Newcomers, add_robot, answer, capture_views, new_household
 from test_browser_pages import CONTRAST_CHECK
 
 pytestmark = pytest.mark.browser
-PAGES = ["", "record", "label", "progress", "household", "admin", "scene"]  # "" is the Start page
+PAGES = ["", "record", "label", "progress", "household", "admin", "scene", "login"]  # "" is the Start page
 PHONE = {"width": 390, "height": 844}
 DESKTOP = {"width": 1280, "height": 800}
 SCREENS = ARTIFACTS / "screens"
