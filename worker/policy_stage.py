@@ -61,15 +61,25 @@ def improve_policy(
     seed: int,
     on_update: Callable[[float, dict[str, Any]], bool],
     on_rollout_step: Callable[[Any], None] | None = None,
+    robot_env_context: str | None = None,
 ) -> PolicyImproveResult:
     """PPO from `policy_checkpoint`; `on_update(fraction, point)` after each update (True: stop),
-    `on_rollout_step` after each step of env 0 (`learning.rl.ppo.RolloutStep`: the live view)."""
+    `on_rollout_step` after each step of env 0 (`learning.rl.ppo.RolloutStep`: the live view). With
+    `robot_env_context` (`learning.rl.env_groups.in_process_env`: a real robot), PPO runs on that one
+    environment in this process instead of simulated worlds."""
+    from learning.rl.env_groups import IN_PROCESS
     from learning.rl.ppo import PPOConfig, read_policy_checkpoint
     from learning.rl.run import train_run
 
     base = PPOConfig.from_dict(read_policy_checkpoint(policy_checkpoint)["config"])
     if base.goal_encoder != "var":
         raise ValueError(f"{policy_checkpoint} was not trained with the VAR; it cannot improve itself")
+    if robot_env_context is not None:
+        base = dataclasses.replace(
+            base, num_envs=1, env_groups=1, num_minibatches=1, env_context=robot_env_context
+        )
+    elif base.env_context.startswith(IN_PROCESS):  # the parent improved on a real robot: back to simulation
+        base = dataclasses.replace(base, env_context=PPOConfig.env_context)
     steps = max(int(steps), base.batch_size)  # at least one PPO update
     config = dataclasses.replace(
         base,

@@ -1,6 +1,8 @@
-"""The real Kinova Gen3 (`kinova-real` robots) on the robot queue: snapshot capture from its camera and the
-household's commands tried with the active policy, over `sim.kinova_real.KinovaRealEnv` and the Kortex driver.
-None of this has run against a real arm: it is tested with a Kortex stand-in (tests/sim/kortex_standin.py).
+"""The real Kinova Gen3 (`kinova-real` robots): snapshot capture from its camera and the household's commands
+tried with the active policy (robot-queue tasks), and policy self-improvement on the arm (a run's
+policy_improve stage: PPO on the arm's one env, in the worker's process, for the run's `policy_steps`, with
+the run's cancel and progress), all over `sim.kinova_real.KinovaRealEnv` and the Kortex driver. None of this
+has run against a real arm: it is tested with a Kortex stand-in (tests/sim/kortex_standin.py).
 
 Where a real arm's settings come from:
 - the robot's settings (Admin page, `robots.settings`): `arm_ip` (required), `arm_port` (10000),
@@ -15,7 +17,8 @@ The worker that serves the robot queue must reach the arm's IP and have the came
 
 import os
 import secrets
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -87,6 +90,9 @@ def kortex_driver(settings: ArmSettings, image_size: int, **driver_options: Any)
         max_speed_m_s=settings.max_speed_m_s,
         **driver_options,
     )
+
+
+connect_arm: Connect = kortex_driver  # how a run's policy stage reaches the arm (tests: the Kortex stand-in)
 
 
 def is_real_arm(robot_id: int) -> bool:
@@ -161,3 +167,27 @@ def try_arm_commands(
 
     capture = partial(capture_arm_views, connect=connect)
     return try_commands(robot_id, household_id, attempts, random_views, commands, task_id, make_env, capture)
+
+
+@contextmanager
+def arm_env_context(context: Any) -> Iterator[str | None]:
+    """For a run of a real arm (`worker.run_context.RunContext`): the arm's env registered for PPO
+    (`learning.rl.env_groups.in_process_env`), yielding the env_context to train with; None for a simulated
+    robot. The env connects and homes the arm at its first reset; the trainer closes it (Stop, then the
+    session ends) however the stage ends."""
+    if not is_real_arm(context.robot_id):
+        yield None
+        return
+    from learning.rl.env_groups import in_process_env
+    from learning.rl.ppo import read_policy_checkpoint
+
+    policy_config = read_policy_checkpoint(context.parent_policy)["config"]
+    image_size, max_steps = int(policy_config["image_size"]), policy_config.get("max_episode_steps")
+    with get_session_factory()() as session:
+        _, settings = arm_settings(session, context.robot_id, context.household_id)
+
+    def make_env() -> KinovaRealEnv:
+        return KinovaRealEnv(connect_arm(settings, image_size), image_size, max_steps)
+
+    with in_process_env(f"robot-{context.robot_id}", make_env) as env_context:
+        yield env_context

@@ -49,7 +49,9 @@ def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
 
 
 def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
+    """In the robot's simulated world, or on the arm itself for a real arm (`worker.real_arm`)."""
     from worker.policy_stage import improve_policy
+    from worker.real_arm import arm_env_context
 
     if context.parent_policy is None:
         raise ValueError(f"model version {context.parent_id} has no policy to improve")
@@ -60,7 +62,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
                 raise Diverged(f"{key} became {value} at PPO update {point['update']}")
         return progress.update(fraction, {"policy": point}, point=point)
 
-    with _live_rollouts(context, "policy_improve") as live:
+    with arm_env_context(context) as on_arm, _live_rollouts(context, "policy_improve", on_arm) as live:
         result = improve_policy(
             context.data,
             context.parent_policy,
@@ -70,6 +72,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
             context.params["seed"],
             on_update,
             live,
+            on_arm,
         )
     compact = context.folder / "policy" / "final.pt"
     _compact_policy(result.checkpoint, compact)
@@ -117,13 +120,13 @@ STAGES: dict[str, Callable[[RunContext, Progress], dict[str, Any]]] = {
 }
 
 
-def _live_rollouts(context: RunContext, stage: str) -> Any:
+def _live_rollouts(context: RunContext, stage: str, on_arm: str | None = None) -> Any:
     """The scene's live view of env 0 (`worker.live`) as a context manager; it gives None (no hook) when
-    VARBOT_LIVE_ROLLOUT_HZ is 0."""
+    VARBOT_LIVE_ROLLOUT_HZ is 0, or on a real arm (the scene mirrors simulated worlds only)."""
     from worker.live import ROLLOUT_HZ, RolloutPublisher
     from worker.policy_stage import goal_clip_ids
 
-    if ROLLOUT_HZ <= 0:
+    if ROLLOUT_HZ <= 0 or on_arm is not None:
         return contextlib.nullcontext()
     return RolloutPublisher(
         context.household_id, context.run_id, context.robot_id, context.world, stage,

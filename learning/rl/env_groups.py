@@ -4,19 +4,57 @@ While one group's workers step, the learner embeds, rewards and acts for the gro
 workers and learner wait less for each other (one group: plain lockstep). Every environment still acts with
 exactly the current policy. Environments reset in the same step as they end (gymnasium's SAME_STEP
 autoreset): `ended_view` puts the final observation back where the reward needs it.
+
+A real robot's one environment runs in the learner's process instead (its driver's link lives there): the
+caller registers it with `in_process_env` and configures the `env_context` it yields.
 """
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import psutil
-from gymnasium.vector import AsyncVectorEnv
+from gymnasium.vector import AsyncVectorEnv, AutoresetMode, SyncVectorEnv
 
-from learning.rl.envs import make_vector_env, world_id
+from learning.rl.envs import RLInfo, make_vector_env, world_id
 
 RESET_INFO = ("intent", "heard", "distance")
+IN_PROCESS = "in-process:"  # env_context prefix of an environment registered by `in_process_env`
+_in_process_envs: dict[str, Callable[[], gym.Env]] = {}
+
+
+@contextmanager
+def in_process_env(name: str, make_env: Callable[[], gym.Env]) -> Iterator[str]:
+    """While the block runs, `env_context=<what this yields>` (with num_envs = env_groups = 1) trains on the
+    env `make_env` builds, in this process. `name` stays the same for the same robot, so a run resumes."""
+    context = IN_PROCESS + name
+    _in_process_envs[context] = make_env
+    try:
+        yield context
+    finally:
+        _in_process_envs.pop(context, None)
+
+
+def _in_process_vector_env(context: str, num_envs: int) -> SyncVectorEnv:
+    if context not in _in_process_envs:
+        raise RuntimeError(f"no environment is registered for {context!r} (see in_process_env)")
+    if num_envs != 1:
+        raise ValueError(f"an in-process environment is one robot: num_envs must be 1, got {num_envs}")
+    make_env = _in_process_envs[context]
+    return _InProcessVectorEnv([lambda: RLInfo(make_env())], autoreset_mode=AutoresetMode.SAME_STEP)
+
+
+class _InProcessVectorEnv(SyncVectorEnv):
+    """A SyncVectorEnv with AsyncVectorEnv's step_async / step_wait, which the trainer calls."""
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._pending_actions = actions
+
+    def step_wait(self) -> tuple[Any, ...]:
+        return self.step(self._pending_actions)
 
 
 class EnvGroups:
@@ -34,8 +72,10 @@ class EnvGroups:
         size = num_envs // groups
         self.num_envs = num_envs
         self.slices = [slice(g * size, (g + 1) * size) for g in range(groups)]
-        self.vector_envs: list[AsyncVectorEnv] = [
-            make_vector_env(
+        self.vector_envs: list[AsyncVectorEnv | SyncVectorEnv] = [
+            _in_process_vector_env(context, num_envs)
+            if context.startswith(IN_PROCESS)
+            else make_vector_env(
                 world_id(world), size, image_size, success_rule, max_steps, domain=domain, context=context
             )
             for _ in self.slices
@@ -65,7 +105,8 @@ class EnvGroups:
             envs.set_attr(name, values[group])
 
     def worker_processes(self) -> list[psutil.Process]:
-        return [psutil.Process(p.pid) for envs in self.vector_envs for p in envs.processes if p.is_alive()]
+        processes = [p for envs in self.vector_envs for p in getattr(envs, "processes", ())]
+        return [psutil.Process(p.pid) for p in processes if p.is_alive()]
 
     def close(self) -> None:
         for envs in self.vector_envs:

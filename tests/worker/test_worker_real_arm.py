@@ -1,17 +1,22 @@
-"""The real Kinova arm's robot-queue work (worker/real_arm.py) against the Kortex stand-in, which moves the
-PyBullet Gen3 and returns its rendered camera: views captured from the arm's camera, the household's commands
-tried with the active policy on the arm, and a link lost mid-episode (the arm stops, the task fails saying
-why, and what was stored stays). There is no real arm here; nothing has been tried on one."""
+"""The real Kinova arm's work (worker/real_arm.py) against the Kortex stand-in, which moves the PyBullet Gen3
+and returns its rendered camera: views captured from the arm's camera, the household's commands tried with the
+active policy on the arm, policy self-improvement on the arm within a step budget (with cancel and the run's
+progress), and a link lost mid-episode (the arm stops, the work fails saying why, and what was stored stays).
+The runs execute in this process (`worker.pipeline.execute_run`, the training worker's own entry point), so
+the stand-in can be handed to them. There is no real arm here; nothing has been tried on one."""
 
+import threading
 from collections.abc import Iterator
 from functools import partial
 
 import pytest
-from conftest import Household, Stack
+from conftest import TINY, Household, Stack, wait_until
 
 from sim.arm import WORKSPACE_X_M, WORKSPACE_Y_M
 from sim.kortex_driver import KortexMotionError
 from tests.sim.kortex_standin import StandInArm
+from varbot.simulated_household import WORDS
+from worker import real_arm
 from worker.real_arm import (
     WALK_STEPS_PER_VIEW,
     ArmNotConfigured,
@@ -115,3 +120,94 @@ def test_a_link_lost_mid_capture_stops_the_arm_fails_plainly_and_keeps_the_views
     assert "KClientException" not in str(failed.value)
     assert standin.stopped_by_controller and not standin.transport_connected
     assert len(household.snapshots(robot)) == 2
+
+
+# --- self-improvement on the arm ----------------------------------------------------------------------------
+
+STEPS_PER_UPDATE = 12  # the tiny policy's num_steps, on the arm's one env
+
+
+def _labelled_arm(household: Household, standin: StandInArm, name: str) -> tuple[int, int]:
+    """An arm with the tiny model active and 3 views captured, each answered "nothing I said"."""
+    robot = _arm_robot(household, name, image_size=IMAGE)
+    version = _activate_tiny_model(robot)
+    capture_arm_views(robot, household.household_id, 3, connect=_connect(standin))
+    for snapshot in household.snapshots(robot):
+        for word in WORDS:
+            body = {
+                "snapshot_id": snapshot["id"],
+                "clip_id": household.clip_ids[(word, "en")],
+                "verdict": "is_not",
+            }
+            assert household.client.post("/api/v1/labels", json=body).status_code == 201
+    standin.sent.clear()
+    return robot, version
+
+
+def _start_on_arm(
+    household: Household, robot: int, standin: StandInArm, monkeypatch: pytest.MonkeyPatch, steps: int
+) -> tuple[dict, threading.Thread]:
+    from worker.pipeline import execute_run
+
+    monkeypatch.setattr(real_arm, "connect_arm", _connect(standin))
+    run = household.start_run(robot, kind="policy_improve", **{**TINY, "policy_steps": steps})
+    worker = threading.Thread(target=execute_run, args=(run["id"],), daemon=True)
+    worker.start()
+    return run, worker
+
+
+def _what_stays(household: Household, robot: int) -> tuple[list, list, list]:
+    labels = household.client.get("/api/v1/labels", params={"robot_id": robot, "limit": 500}).json()
+    clips = household.client.get("/api/v1/clips").json()
+    active = [v["id"] for v in household.versions(robot) if v["status"] == "active"]
+    return labels, clips, active
+
+
+def test_the_policy_improves_itself_on_the_arm_within_its_step_budget(
+    stack: Stack, household: Household, standin: StandInArm, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    robot, _ = _labelled_arm(household, standin, "improving-arm")
+    run, worker = _start_on_arm(household, robot, standin, monkeypatch, 2 * STEPS_PER_UPDATE)
+    worker.join(600)
+    final = household.run(run["id"])
+    assert final["status"] == "succeeded", final["error"]
+    curve = final["metrics"]["curves"]["policy_improve"]
+    assert [point["env_steps"] for point in curve] == [STEPS_PER_UPDATE, 2 * STEPS_PER_UPDATE]
+    assert standin.methods().count("ExecuteAction") >= 2 * STEPS_PER_UPDATE  # every step moved the arm
+    assert standin.methods().count("ExecuteActionFromReference") >= 2  # episodes start from home
+    assert standin.methods()[-2:] == ["Stop", "CloseSession"] and standin.violations == []
+    assert [v for v in household.versions(robot) if v["run_id"] == run["id"]]
+
+
+def test_cancelling_a_run_on_the_arm_stops_the_arm_and_keeps_the_active_model(
+    stack: Stack, household: Household, standin: StandInArm, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    robot, _ = _labelled_arm(household, standin, "cancelled-arm")
+    before = _what_stays(household, robot)
+    run, worker = _start_on_arm(household, robot, standin, monkeypatch, 400 * STEPS_PER_UPDATE)
+    wait_until(
+        lambda: household.run(run["id"])["metrics"].get("curves", {}).get("policy_improve"), 180, "an update"
+    )
+    assert household.client.post(f"/api/v1/runs/{run['id']}:cancel").status_code == 200
+    worker.join(120)
+    final = household.run(run["id"])
+    assert (final["status"], final["stage"]) == ("cancelled", "policy_improve")
+    assert standin.methods()[-2:] == ["Stop", "CloseSession"]
+    assert _what_stays(household, robot) == before
+
+
+def test_a_link_lost_mid_episode_fails_the_run_plainly_and_loses_nothing(
+    stack: Stack, household: Household, standin: StandInArm, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    robot, _ = _labelled_arm(household, standin, "unplugged-run-arm")
+    before = _what_stays(household, robot)
+    standin.moves_until_disconnect = 3 * STEPS_PER_UPDATE  # after two updates, each with its checkpoint
+    run, worker = _start_on_arm(household, robot, standin, monkeypatch, 50 * STEPS_PER_UPDATE)
+    worker.join(600)
+    final = household.run(run["id"])
+    assert (final["status"], final["stage"]) == ("failed", "policy_improve")
+    assert "KortexMotionError" in final["error"] and "link to the arm at 10.0.0.2 was lost" in final["error"]
+    assert standin.stopped_by_controller and not standin.transport_connected
+    assert "policy_checkpoint" in final["metrics"]["artifacts"] and final["checkpoints"]
+    assert _what_stays(household, robot) == before
+    assert not [v for v in household.versions(robot) if v["run_id"] == run["id"]]
