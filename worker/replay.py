@@ -43,14 +43,28 @@ def _parent_corpus(parent_var: Path):  # type: ignore[no-untyped-def]
             "built with `varbot models build-base`"
         )
     try:
-        corpus = load_corpus(sound_set, front_end=front_end_of(parent_var)).subset("train")
-    except (FileNotFoundError, ValueError) as missing:
+        try:
+            corpus = load_corpus(sound_set, front_end=front_end_of(parent_var))
+        except FileNotFoundError:
+            _build_missing_corpus(sound_set)
+            corpus = load_corpus(sound_set, front_end=front_end_of(parent_var))
+        corpus = corpus.subset("train")
+    except (FileNotFoundError, ValueError, RuntimeError) as missing:
         raise ReplayMissing(
-            f"the replay corpus {sound_set!r} of the model being fine-tuned is missing on this worker "
-            f"({missing}); build it with `varbot sounds build --sets {sound_set}`, or fine-tune without "
-            "replay (run parameter replay_fraction 0)"
+            f"the replay corpus {sound_set!r} of the model being fine-tuned is missing on this worker and "
+            f"could not be built here ({missing}); build it with `varbot sounds build --sets {sound_set}` "
+            "(it needs the speech synthesizers in scripts/install-system-packages.sh), or fine-tune "
+            "without replay (run parameter replay_fraction 0)"
         ) from missing
     return corpus
+
+
+def _build_missing_corpus(sound_set: str) -> None:
+    """A worker that never built the base corpus builds it once, as `varbot sounds build` would (offline,
+    from the speech synthesizers; about half a minute for a speech set on this 2-core machine)."""
+    from learning.sounds.build import build_corpora
+
+    build_corpora([sound_set], progress=False, log=lambda line: None)
 
 
 def _fresh_views(world: str, count: int, image_size: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -117,10 +117,11 @@ def test_what_cannot_be_attempted_or_replayed_says_why_and_what_to_do(
     assert not household.snapshots(no_model["id"]), "nothing was stored"
 
     robot = household.new_robot("replay-missing-arm", views=40)
-    _version_with_corpus(robot, (base_model / "var.pt").read_bytes(), "notes")
+    _version_with_corpus(robot, (base_model / "var.pt").read_bytes(), "retired-set")
     run = household.wait_run(household.start_run(robot, **{**TINY, "replay_fraction": 0.25})["id"], 300)
     assert run["status"] == "failed" and "var_finetune" in run["error"]
-    assert "replay corpus 'notes'" in run["error"] and "varbot sounds build --sets notes" in run["error"]
+    assert "replay corpus 'retired-set'" in run["error"] and "could not be built here" in run["error"]
+    assert "replay_fraction 0" in run["error"], "says what to do instead"
 
 
 def test_a_command_with_no_recording_is_refused_before_the_robot_moves(household: Household) -> None:
