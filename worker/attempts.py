@@ -85,7 +85,7 @@ def try_commands(
         rng = np.random.default_rng(secrets.randbits(31))
         created = []
         report("running", f"trying {attempts} times: {', '.join(c.name for c in asked)}", 0)
-        with _player(model.policy_path, var, world, room_of(robot.settings or {}), make_env) as play:
+        with policy_player(model.policy_path, var, world, room_of(robot.settings or {}), make_env) as play:
             for index in range(attempts):
                 command = asked[index % len(asked)]
                 clip_id = int(rng.choice(command.clip_ids))
@@ -194,7 +194,7 @@ def _feature_kind(world: str) -> str:
 
 
 @contextlib.contextmanager
-def _player(
+def policy_player(
     policy_path: Path, var: Any, world: str, room: Any, make_env: MakeEnv | None = None
 ) -> Iterator[Callable[[Any, int], Attempt]]:
     """A function playing one deterministic episode of the policy toward a goal, in the robot's room (or,
