@@ -5,21 +5,20 @@
   `/admin`, `/household`, `/scene`: the HTML pages;
 - `/static/…`: their CSS and ES modules (no build step);
 - `/api/v1/system/queues`: queue lengths and the workers that answer (admins; see backend/system_status.py);
-- `/scene/status`: whether the scene can be shown to the signed-in member, and why not, and how many
-  scene tabs are open through this app;
-- `/scene/viser/…` (HTTP) and the `/scene/viser` WebSocket: a proxy to the Viser service on 127.0.0.1, open
-  only to a signed-in member of the household the scene serves.
+- `/scene/status`: whether the signed-in member's household scene can be shown (starting it when none runs),
+  and why not, and how many scene tabs are open through this app;
+- `/scene/viser/…` (HTTP) and the `/scene/viser` WebSocket: a proxy to the Viser service on 127.0.0.1 of the
+  signed-in member's own household.
 
-The scene service runs on this machine and announces in `data_dir()/scene/endpoint.json` (written by
-`scene/`, readable by this user only) where it listens and the headers to present: the scene answers nobody
-who does not present them (`scene/access.py`), so it is watched only through this proxy.
+Each household has its own scene process, started on demand by this app (`scene/on_demand.py`) and stopping
+by itself once nobody has watched it for a while. It announces in `data_dir()/scene/household-<id>.json`
+(written by `scene/endpoint.py`, readable by this user only) where it listens and the headers to present: the
+scene answers nobody who does not present them (`scene/access.py`), so it is watched only through this proxy.
 """
 
 import asyncio
 import contextlib
-import json
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import httpx
@@ -34,7 +33,9 @@ from backend.db import get_session_factory
 from backend.deps import Caller, get_caller
 from backend.settings import get_settings
 from backend.system_status import router as system_router
-from core.paths import REPO_ROOT, data_dir
+from core.paths import REPO_ROOT
+from scene import on_demand
+from scene.endpoint import announced
 
 FRONTEND_DIR = REPO_ROOT / "frontend"
 PAGES = ("home", "login", "record", "label", "progress", "admin", "household", "scene")
@@ -75,6 +76,17 @@ class SceneEndpoint:
         return {**kept, **self.headers}
 
 
+class SceneStarting(HTTPException):
+    """The household's scene is not announced yet: it has been started (or is coming up)."""
+
+    def __init__(self) -> None:
+        super().__init__(
+            status.HTTP_503_SERVICE_UNAVAILABLE,
+            "starting the 3D scene for your household (this takes a few seconds)…",
+            headers={"Retry-After": "2"},
+        )
+
+
 class SceneViewers:
     """How many scene tabs this app proxies right now; a tab counts until the proxy has finished with it."""
 
@@ -85,17 +97,10 @@ class SceneViewers:
 scene_viewers = SceneViewers()
 
 
-def scene_endpoint_file() -> Path:
-    return data_dir() / "scene" / "endpoint.json"
-
-
-def scene_endpoint() -> SceneEndpoint | None:
-    try:
-        found = json.loads(scene_endpoint_file().read_text())
-        headers = {str(k): str(v) for k, v in found["headers"].items()}
-        return SceneEndpoint(str(found["url"]).rstrip("/"), found.get("household_id"), headers)
-    except (OSError, ValueError, KeyError, AttributeError):
-        return None
+def scene_endpoint(household_id: int) -> SceneEndpoint | None:
+    """The household's running scene; None while it has none (then `on_demand.start_for` starts one)."""
+    found = announced(household_id)
+    return SceneEndpoint(found.url, found.household_id, found.headers) if found is not None else None
 
 
 def install_pages(app: FastAPI, api_prefix: str = "/api/v1") -> None:
@@ -141,18 +146,10 @@ def _scene_caller(headers: Headers, cookies: dict[str, str]) -> tuple[Caller, Sc
     """The signed-in member allowed to see the scene, and where the scene listens; HTTPException otherwise."""
     with get_session_factory()() as session:
         caller = get_caller(_ReadOnlyHandshake(headers, cookies), session, get_settings())  # type: ignore[arg-type]
-    endpoint = scene_endpoint()
+    endpoint = scene_endpoint(caller.household_id)
     if endpoint is None:
-        raise HTTPException(
-            status.HTTP_503_SERVICE_UNAVAILABLE,
-            "the 3D scene is not running: start it with `varbot scene` (or `varbot up`)",
-        )
-    if endpoint.household_id is not None and endpoint.household_id != caller.household_id:
-        raise HTTPException(
-            status.HTTP_403_FORBIDDEN,
-            "this scene shows another household's robot: start a scene for yours with "
-            "`varbot scene --household <your household id>`",
-        )
+        on_demand.start_for(caller.household_id)
+        raise SceneStarting()
     return caller, endpoint
 
 
@@ -164,7 +161,10 @@ async def scene_status(request: Request) -> JSONResponse:
     except HTTPException as exc:
         if exc.status_code == status.HTTP_401_UNAUTHORIZED:
             raise
-        return JSONResponse({"available": False, "detail": exc.detail, "viewers": scene_viewers.open})
+        starting = isinstance(exc, SceneStarting)
+        return JSONResponse(
+            {"available": False, "starting": starting, "detail": exc.detail, "viewers": scene_viewers.open}
+        )
     return JSONResponse({"available": True, "detail": "the scene is running", "viewers": scene_viewers.open})
 
 
@@ -180,7 +180,7 @@ async def scene_http(path: str, request: Request) -> Response:
     except httpx.HTTPError as exc:
         raise HTTPException(
             status.HTTP_502_BAD_GATEWAY,
-            f"the 3D scene did not answer ({exc.__class__.__name__}); is `varbot scene` running?",
+            f"the 3D scene did not answer ({exc.__class__.__name__}); reload the page to start it again",
         ) from exc
     headers = {k: v for k, v in upstream.headers.items() if k.lower() not in _HOP_BY_HOP}
     headers.pop("content-encoding", None)  # httpx has already decoded the body

@@ -1,7 +1,7 @@
 """Only the app's proxy may watch the scene. Viser listens on 127.0.0.1 only, and every request to it (the
 viewer's files and the WebSocket) must carry this start's secret in `SECRET_HEADER`; any other local process
 or browser page gets 403 before Viser sees the request. The secret reaches the proxy through the endpoint file
-(`scene.endpoint`, readable by the app's user only), with the header to present it in.
+(`scene.endpoint`, one per household, readable by the app's user only), with the header to present it in.
 
 Viser 1.1 has no access check of its own and no unix-socket option; it starts its server with
 `websockets.asyncio.server.serve(..., process_request=...)`. `guarded_viser_server` wraps that one call, while
@@ -20,8 +20,9 @@ import websockets.asyncio.server
 from websockets.asyncio.server import ServerConnection
 from websockets.http11 import Request, Response
 
+from scene.endpoint import SECRET_HEADER
+
 LOOPBACK = "127.0.0.1"
-SECRET_HEADER = "X-Varbot-Scene-Secret"
 REFUSED = "The 3D scene is shown through the app only: open /scene there and sign in.\n"
 
 ProcessRequest = Callable[[ServerConnection, Request], Any]

@@ -22,11 +22,16 @@ def run_scene(
         float, typer.Option(min=1.0, max=60.0, help="simulation and camera frames per second")
     ] = 15.0,
     wait: Annotated[bool, typer.Option(help="wait for the first household instead of stopping")] = False,
+    stop_when_unwatched_s: Annotated[
+        float, typer.Option(min=0.0, help="stop after this many seconds without a viewer (0: never)")
+    ] = 0.0,
 ) -> None:
-    """The 3D scene: the robot, its camera view, the embedding sphere, "try a command". Runs until Ctrl-C.
-    The API finds it through data_dir()/scene/endpoint.json."""
+    """The 3D scene of one household: the robot, its camera view, the embedding sphere, "try a command". Runs
+    until Ctrl-C (or, with --stop-when-unwatched-s, until nobody has watched for that long). The API finds it
+    through data_dir()/scene/household-<id>.json; the API starts one on demand when a member opens /scene."""
     import torch
 
+    from scene.endpoint import hold_scene_lock
     from scene.household import default_household_id
     from scene.service import SceneService
 
@@ -47,7 +52,13 @@ def run_scene(
             err=True,
         )
         raise typer.Exit(1)
-    service = SceneService(household_id, robot_id=robot, port=port, fps=fps)
+    lock = hold_scene_lock(household_id)
+    if lock is None:
+        typer.echo(f"a scene for household {household_id} is already running", err=True)
+        return
+    service = SceneService(
+        household_id, robot_id=robot, port=port, fps=fps, idle_stop_s=stop_when_unwatched_s or None
+    )
     signal.signal(signal.SIGTERM, lambda *_: service.stop())
     signal.signal(signal.SIGINT, lambda *_: service.stop())
     typer.echo(f"scene for household {household_id} at {service.url} (reach it through the app at /scene)")

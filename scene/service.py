@@ -44,8 +44,11 @@ class SceneService:
         port: int = 0,
         fps: float = 15.0,
         follow_timeout_s: float = FOLLOW_TIMEOUT_S,
+        idle_stop_s: float | None = None,
     ) -> None:
         self.household_id = household_id
+        self.idle_stop_s = idle_stop_s  # None: runs until stopped, watched or not
+        self.last_watched = time.monotonic()
         self.fps = fps
         self.secret = new_secret()
         self.server = guarded_viser_server(self.secret, port)
@@ -88,20 +91,25 @@ class SceneService:
         self.run_following.start()
         period = 1.0 / self.fps
         try:
-            while not self.stop_event.is_set():
+            while not self.stop_event.is_set() and not self._unwatched_for_too_long():
                 started = time.monotonic()
                 self._tick()
                 self.tick_times.append(time.monotonic())
                 self.stop_event.wait(max(0.0, period - (time.monotonic() - started)))
         finally:
             self.run_following.stop()
-            endpoint.withdraw()
+            endpoint.withdraw(self.household_id)
             self.server.stop()
             if self.world is not None:
                 self.world.close()
 
     def stop(self) -> None:
         self.stop_event.set()
+
+    def _unwatched_for_too_long(self) -> bool:
+        if self.server.get_clients():
+            self.last_watched = time.monotonic()
+        return self.idle_stop_s is not None and time.monotonic() - self.last_watched > self.idle_stop_s
 
     @property
     def measured_fps(self) -> float:

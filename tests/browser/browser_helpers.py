@@ -335,11 +335,15 @@ def activate_untrained_model(stack: Stack, robot: int) -> int:
 
 
 @pytest.fixture(scope="session")
-def scene_service(stack: Stack, robot_id: int) -> Iterator[Service]:
-    endpoint = stack.data_dir / "scene" / "endpoint.json"
-    scene = stack.start(
-        services.scene_service("--household", str(stack.household_id), "--fps", "15", endpoint=endpoint)
+def scene_service(stack: Stack, robot_id: int) -> dict:
+    """Alice's household's scene, started on demand by the API (as opening the Scene page does); yields what
+    it announced (scene/endpoint.py)."""
+    with stack.client() as alice:
+        member = {"Authorization": alice.headers["Authorization"]}
+    status_url = f"{stack.url}/scene/status"
+    services.wait_until(
+        lambda: httpx.get(status_url, headers=member, timeout=30).json()["available"],
+        120,
+        "the household's scene to start on demand",
     )
-    yield scene
-    scene.stop()
-    assert not endpoint.exists(), "the scene did not withdraw its endpoint file on shutdown"
+    return json.loads((stack.data_dir / "scene" / f"household-{stack.household_id}.json").read_text())

@@ -6,6 +6,7 @@ import io
 import json
 import logging
 import re
+import subprocess
 
 import httpx
 import numpy as np
@@ -16,13 +17,14 @@ from browser_helpers import (
     ARTIFACTS,
     Stack,
     activate_untrained_model,
+    sign_in,
     tone_wav,
     upload_clip,
     upload_views,
 )
 from PIL import Image
 
-from varbot.services import wait_until
+from varbot.services import varbot_argv, wait_until
 
 VISER_PROTOCOL = f"viser-v{viser.__version__}"  # the viewer's subprotocol: Viser refuses another version
 CAMERA_UPDATES = 20  # new camera images the browser must receive (and the frame rate is measured over)
@@ -46,12 +48,12 @@ def test_the_scene_is_refused_without_a_session(scene_ready: Stack, scene_servic
     ws_url = scene_ready.url.replace("http://", "ws://") + "/scene/viser"
     with pytest.raises(websockets.exceptions.InvalidStatus):
         websockets.sync.client.connect(ws_url, subprotocols=["viser-v1"], open_timeout=10)
-    endpoint = json.loads((scene_ready.data_dir / "scene" / "endpoint.json").read_text())
+    endpoint = _scene_endpoint(scene_ready)
     assert endpoint["url"].startswith("http://127.0.0.1:"), "the scene must listen on the loopback only"
 
 
 def _scene_endpoint(stack: Stack) -> dict:
-    return json.loads((stack.data_dir / "scene" / "endpoint.json").read_text())
+    return json.loads((stack.data_dir / "scene" / f"household-{stack.household_id}.json").read_text())
 
 
 def _bearer(stack: Stack) -> dict[str, str]:
@@ -158,3 +160,34 @@ def test_the_scene_shows_the_sphere_and_a_live_camera(page, scene_ready: Stack, 
     # load. What must hold anywhere: the loop runs and the browser keeps receiving new camera images.
     assert reported > 0, "the scene loop reports no frames"
     assert updates >= CAMERA_UPDATES, f"the camera image changed only {updates} times in 60 s in the browser"
+
+
+def test_two_households_watch_their_own_scenes_at_once(
+    page, browser, stack: Stack, robot_id: int, console
+) -> None:  # type: ignore[no-untyped-def]
+    """Carol's household gets its own scene, started when she opens the page, while Alice watches hers."""
+    carol = ("--username", "carol", "--household", "garden home", "--display-name", "Carol")
+    subprocess.run(varbot_argv("admin", "create", *carol), env=stack.env, capture_output=True, check=True)
+    with stack.client("carol") as client:
+        client.post("/robots", json={"name": "garden arm", "kind": "kuka-sim"}).raise_for_status()
+    carols = browser.new_context(viewport={"width": 1280, "height": 900})
+    carols.on("page", console.attach)
+    carol_tab = carols.new_page()
+    sign_in(carol_tab, stack.url, "carol")
+    try:
+        for tab in (page, carol_tab):  # both open the Scene page before either scene is shown
+            tab.goto(f"{stack.url}/scene")
+        for tab, own, other in (
+            (page, "kitchen arm", "garden arm"),
+            (carol_tab, "garden arm", "kitchen arm"),
+        ):
+            frame = tab.frame_locator("#scene")
+            frame.get_by_text(own).first.wait_for(timeout=180_000)
+            assert frame.get_by_text(other).count() == 0, f"{own}'s household sees {other}"
+            assert "another household" not in tab.locator("#scene-message").inner_text()
+        announced = sorted((stack.data_dir / "scene").glob("household-*.json"))
+        urls = {json.loads(path.read_text())["url"] for path in announced}
+        assert len(announced) == 2 and len(urls) == 2, "one scene process per household"
+        carol_tab.screenshot(path=str(ARTIFACTS / "scene-second-household.png"))
+    finally:
+        carols.close()

@@ -59,9 +59,10 @@ def test_the_endpoint_file_names_the_secret_and_only_its_owner_can_read_it(
 ) -> None:
     monkeypatch.setenv("VARBOT_DATA_DIR", str(tmp_path))
     endpoint.announce("http://127.0.0.1:1234", household_id=3, secret="s3cret")
-    written = endpoint.endpoint_file()
+    written = endpoint.endpoint_file(household_id=3)
     assert stat.S_IMODE(written.stat().st_mode) == 0o600
     announced = json.loads(written.read_text())
     assert announced["headers"] == {SECRET_HEADER: "s3cret"} and announced["household_id"] == 3
-    endpoint.withdraw()
+    assert endpoint.announced(3) is not None and endpoint.announced(4) is None, "one file per household"
+    endpoint.withdraw(household_id=3)
     assert not written.exists()

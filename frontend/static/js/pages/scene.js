@@ -1,18 +1,35 @@
 import { pageFailed, pageReady, say, startPage } from "../shell.js";
 
 const SCENE_URL = "/scene/viser/";
+const STARTING_POLL_MS = 1000; // the household's scene is started on demand: asked again until it is up
+const STARTING_FOR_MS = 120_000;
+
+async function sceneState() {
+  const response = await fetch("/scene/status", { credentials: "same-origin" });
+  if (response.status === 401) {
+    location.assign("/login?next=/scene");
+    return null;
+  }
+  return response.json();
+}
 
 async function main() {
   await startPage("scene");
   pageReady(); // the scene page has no controls of its own
   const message = document.getElementById("scene-message");
-  const response = await fetch("/scene/status", { credentials: "same-origin" });
-  if (response.status === 401) return location.assign("/login?next=/scene");
-  const state = await response.json();
+  const giveUpAt = Date.now() + STARTING_FOR_MS;
+  let state = await sceneState();
+  while (state && !state.available && state.starting && Date.now() < giveUpAt) {
+    say(message, "Starting your household's 3D scene (a few seconds)…");
+    await new Promise((resolve) => setTimeout(resolve, STARTING_POLL_MS));
+    state = await sceneState();
+  }
+  if (!state) return;
   if (!state.available) {
     say(message, `The 3D scene is not available: ${state.detail}`, "warn");
     return;
   }
+  say(message, "");
   const frame = document.getElementById("scene");
   frame.src = SCENE_URL;
   frame.hidden = false;
