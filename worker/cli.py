@@ -75,6 +75,7 @@ def build_base(
 
     Rerunning the same command resumes it (views, VAR and policy each continue from their checkpoints)."""
     import json
+    import signal
 
     from core.paths import data_dir
     from worker.base_models import BaseRecipe
@@ -85,8 +86,13 @@ def build_base(
         var_epochs=var_epochs, var_max_steps=var_max_steps, policy_steps=policy_steps,
         eval_episodes_per_intent=eval_episodes_per_intent, seed=seed,
     )  # fmt: skip
+    signal.signal(signal.SIGTERM, _exit_when_terminated)  # a stopped build still adds up its stage times
     record = build(recipe, out or data_dir() / "base_models")
     typer.echo(json.dumps(record, indent=2))
+
+
+def _exit_when_terminated(signum: int, frame: object) -> None:
+    raise SystemExit(128 + signum)
 
 
 @models_app.command("adopt")
