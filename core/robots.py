@@ -1,6 +1,8 @@
 """Which simulated world serves each robot kind: the one rule the API, the worker and the scene share."""
 
+from collections.abc import Mapping
 from enum import StrEnum
+from typing import Any
 
 
 class RobotKind(StrEnum):
@@ -31,3 +33,10 @@ def world_of_kind(kind: str) -> str:
     except ValueError:
         known = ", ".join(k.value for k in RobotKind)
         raise ValueError(f"no simulated world for robot kind {kind!r}; known kinds: {known}") from None
+
+
+def worker_drives(kind: str, settings: Mapping[str, Any]) -> bool:
+    """Whether the robot worker moves this robot (captures its views, tries commands with it): every simulated
+    robot, and a real Kinova arm whose settings say where it is (`arm_ip`, see worker/real_arm.py)."""
+    robot_kind = RobotKind(kind)
+    return robot_kind.simulated or (robot_kind is RobotKind.KINOVA_REAL and bool(settings.get("arm_ip")))

@@ -211,3 +211,23 @@ def test_a_link_lost_mid_episode_fails_the_run_plainly_and_loses_nothing(
     assert "policy_checkpoint" in final["metrics"]["artifacts"] and final["checkpoints"]
     assert _what_stays(household, robot) == before
     assert not [v for v in household.versions(robot) if v["run_id"] == run["id"]]
+
+
+def test_the_robot_worker_without_kortex_api_fails_an_arms_attempts_saying_how_to_install_it(
+    stack: Stack, household: Household
+) -> None:
+    """Through the API, Redis and the stack's robot worker, which has no Kortex stand-in and no kortex_api."""
+    robot = _arm_robot(household, "worker-arm")
+    _activate_tiny_model(robot)
+    response = household.client.post(f"/api/v1/robots/{robot}/attempts", json={"count": 1})
+    assert response.status_code == 202, response.text
+    task_id = response.json()["task_id"]
+
+    def ended() -> dict | None:
+        status = household.client.get(f"/api/v1/robots/{robot}/attempts/{task_id}").json()
+        return status if status["state"] in ("done", "refused", "failed") else None
+
+    status = wait_until(ended, 180, "the attempts task to end", interval=0.5)
+    assert status["state"] == "failed" and "KortexUnavailableError" in status["message"]
+    assert "kortex_api" in status["message"] and "pip install" in status["message"]
+    assert household.snapshots(robot) == []

@@ -7,13 +7,14 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, Path, Query, Request, Response, status
 from pydantic import BaseModel, Field, StringConstraints
 
-from backend import broker, models, schemas
+from backend import broker, schemas
 from backend.api.ranges import ranged_response
 from backend.api.responses import errors
 from backend.deps import BlobsDep, CallerDep, SessionDep, SettingsDep
 from backend.errors import Conflict, Invalid, NotFound
 from backend.schemas import PathId, QueryId
 from backend.services import attempts, robots, snapshots
+from core.robots import worker_drives
 
 router = APIRouter(tags=["attempts"])
 
@@ -94,10 +95,10 @@ def ask_for_attempts(
     random-exploration views join them (`random_share`). Follow it with GET …/attempts/{task_id}. The views
     count against the household's hourly capture quota (429 beyond it)."""
     robot = robots.get_robot(session, caller.household_id, robot_id)
-    if not models.RobotKind(robot.kind).simulated:
+    if not worker_drives(robot.kind, robot.settings or {}):
         raise Conflict(
-            f"robot {robot.id} is a real {robot.kind}: attempts are made by simulated robots for now; "
-            "capture its camera frames instead (POST …/snapshots)"
+            f"robot {robot.id} is a real {robot.kind}: attempts are made by simulated robots, or by a real "
+            "arm the robot worker drives (set its arm_ip), or capture its camera frames (POST …/snapshots)"
         )
     command_keys = attempts.check_commands(session, caller.household_id, body.commands)
     random_views = attempts.random_view_count(body.count, body.random_share)

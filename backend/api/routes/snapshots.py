@@ -11,6 +11,7 @@ from backend.errors import Conflict, Invalid, Unavailable
 from backend.schemas import Offset, PathId, QueryId
 from backend.services import robots, snapshots
 from backend.services.attempts import ATTEMPT_SOURCE
+from core.robots import worker_drives
 
 router = APIRouter(tags=["snapshots"])
 
@@ -31,9 +32,10 @@ def capture(
     """Ask the robot worker to render `count` camera views from random poses (simulated robots); a household
     may ask for `capture_views_per_hour` views an hour (429 with Retry-After beyond that)."""
     robot = robots.get_robot(session, caller.household_id, robot_id)
-    if not models.RobotKind(robot.kind).simulated:
+    if not worker_drives(robot.kind, robot.settings or {}):
         raise Conflict(
-            f"robot {robot.id} is a real {robot.kind}: it uploads its own frames (POST …/snapshots)"
+            f"robot {robot.id} is a real {robot.kind}: it uploads its own frames (POST …/snapshots), or set "
+            "its arm_ip so the robot worker drives it"
         )
     if body.count > settings.max_capture_count:
         raise Invalid(f"at most {settings.max_capture_count} views per request; ask for fewer")
