@@ -1,5 +1,6 @@
 """The panel beside the 3D view: the status line, the robot's camera image, "Try a command" and the reward
-f_I(I_t) · f_S(S_goal) as a number and a small live curve."""
+f_I(I_t) · f_S(S_goal) (shown in plain words: how close what the robot sees is to the command) as a number
+and a small live curve."""
 
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -12,6 +13,10 @@ from scene.live import LiveRollout
 from scene.sphere import SphereData
 
 NO_CLIPS = "(no recordings yet)"
+REWARD_LABEL = "How close to the command"
+REWARD_HINT = (
+    "how close what the robot sees is to the command, as the active model hears it (higher is closer)"
+)
 REWARD_HISTORY = 120
 PLOT_EVERY = 3  # redraw the curve on every third reward: the browser need not re-plot 15 times a second
 
@@ -35,7 +40,9 @@ class Panel:
             self.stop_button = gui.add_button("Stop", color="red")
             self.command_status = gui.add_markdown("Pick a recording and press “Carry it out”.")
         with gui.add_folder("Reward"):
-            self.reward_number = gui.add_number("f_I(I_t)·f_S(goal)", 0.0, disabled=True, step=0.001)
+            self.reward_number = gui.add_number(
+                REWARD_LABEL, 0.0, disabled=True, step=0.001, hint=REWARD_HINT
+            )
             self.reward_plot = gui.add_uplot(
                 data=(np.zeros(2), np.zeros(2)),
                 series=({"label": "step"}, {"label": "reward", "stroke": "#0b57d0", "width": 2}),

@@ -52,7 +52,9 @@ class SceneService:
         self.fps = fps
         self.secret = new_secret()
         self.server = guarded_viser_server(self.secret, port)
-        self.server.gui.configure_theme(control_width="large", dark_mode=False, show_logo=False)
+        self.server.gui.configure_theme(
+            control_width="large", dark_mode=False, show_logo=False, show_share_button=False
+        )  # Viser's share button offers a public link; the scene is shown through the app only
         self.stop_event = threading.Event()
         self.requests: queue.Queue[tuple[str, Any]] = queue.Queue()
         self.view = HouseholdView(household_id=household_id, robot=None)
