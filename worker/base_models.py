@@ -77,7 +77,7 @@ def write_base(
     """Copy a VAR and a policy into `out_root/<world>/` (the policy without optimiser state) with a record."""
     import torch
 
-    from learning.rl.ppo import read_policy_checkpoint
+    from learning.rl.checkpoints import compact_policy_checkpoint
     from learning.var.checkpoint import read_checkpoint
 
     folder = out_root / world
@@ -85,11 +85,7 @@ def write_base(
     var_payload = read_checkpoint(var_checkpoint)
     var_payload.pop("training", None)
     torch.save(var_payload, folder / "var.pt")
-    policy = read_policy_checkpoint(policy_checkpoint)
-    kept = {
-        k: policy[k] for k in ("kind", "config", "policy_config", "policy", "label_counts") if k in policy
-    }
-    torch.save(kept, folder / "policy.pt")
+    compact_policy_checkpoint(policy_checkpoint, folder / "policy.pt")
     sizes = {name: (folder / name).stat().st_size for name in ("var.pt", "policy.pt")}
     (folder / RECORD).write_text(json.dumps({**record, "file_bytes": sizes}, indent=2) + "\n")
     return folder

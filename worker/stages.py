@@ -147,12 +147,6 @@ def _candidate_version_files(context: RunContext, version_id: int) -> tuple[Path
 
 def _compact_policy(checkpoint: Path, out: Path) -> None:
     """The policy without optimiser and RNG state: what a model version needs to act and to improve."""
-    import torch
+    from learning.rl.checkpoints import compact_policy_checkpoint
 
-    from learning.rl.ppo import read_policy_checkpoint
-
-    payload = read_policy_checkpoint(checkpoint)
-    kept = {
-        k: payload[k] for k in ("kind", "config", "policy_config", "policy", "label_counts") if k in payload
-    }
-    torch.save(kept, out)
+    compact_policy_checkpoint(checkpoint, out)

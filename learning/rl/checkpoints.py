@@ -69,6 +69,17 @@ def _upgrade_unversioned(payload: dict[str, Any]) -> dict[str, Any]:
     return upgraded
 
 
+ACTING_KEYS = ("kind", "format_version", "config", "policy_config", "policy", "label_counts")
+
+
+def compact_policy_checkpoint(source: Path, out: Path) -> Path:
+    """The policy without optimiser, RNG and episode state, in the current format: what a model version or
+    a base model needs to act and to improve."""
+    payload = read_policy_checkpoint(source)
+    torch.save({key: payload[key] for key in ACTING_KEYS if key in payload}, out)
+    return out
+
+
 def load_policy(path: Path) -> tuple[Policy, dict[str, Any]]:
     """The policy stored in a checkpoint (eval mode) and the checkpoint's contents."""
     payload = read_policy_checkpoint(path)

@@ -11,6 +11,7 @@ from learning.rl.checkpoints import (
     CHECKPOINT_KIND,
     FORMAT_VERSION,
     LEGACY_RUN_OPTIONS,
+    compact_policy_checkpoint,
     load_policy,
     read_policy_checkpoint,
 )
@@ -104,3 +105,15 @@ def test_the_shipped_kuka_base_model_loads_and_acts_as_before_checkpoints_had_ve
     torch.testing.assert_close(mean, torch.tensor(expected_mean), rtol=0, atol=1e-6)
     torch.testing.assert_close(value, torch.tensor(expected_value), rtol=0, atol=1e-5)
     assert PPOConfig.from_dict(payload["config"]).goal_fusion == "image"
+
+
+def test_a_compacted_policy_keeps_the_current_format_and_acts_the_same(tmp_path: Path) -> None:
+    compact = compact_policy_checkpoint(SHIPPED_KUKA_POLICY, tmp_path / "policy.pt")
+    stored = torch.load(compact, map_location="cpu", weights_only=False)
+    assert stored["format_version"] == FORMAT_VERSION, "a compacted file says which format it is"
+    assert not {"optimizer", "rng", "stats"} & set(stored), "only what acting and improving need"
+    inputs = fixed_inputs(load_policy(SHIPPED_KUKA_POLICY)[0].config.policy_image_size)
+    for before, after in zip(
+        act(load_policy(SHIPPED_KUKA_POLICY)[0], inputs), act(load_policy(compact)[0], inputs), strict=True
+    ):
+        assert torch.equal(before, after)
