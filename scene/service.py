@@ -29,7 +29,7 @@ from scene.live import FOLLOW_TIMEOUT_S, LiveRollout
 from scene.panel import Panel, status_line
 from scene.refresh import HouseholdRefresh
 from scene.sphere import SphereData, SphereView, reward, sphere_for
-from scene.trial import CommandTrial, why_not
+from scene.trial import CommandTrial, clip_for, command_choices, why_not
 from scene.world import SimWorld
 from scene.world_view import WorldView
 
@@ -128,7 +128,7 @@ class SceneService:
     def apply(self, view: HouseholdView) -> None:
         """Take in freshly read household data: new recordings, another robot or model, new sphere points."""
         self.view = view
-        self.panel.offer_clips([clip.title for clip in view.clips])
+        self.panel.offer_clips(command_choices(view))
         if self.following is None:  # while following, the run decides the world
             self._ask_for_robot_world(view)
         if self.model.follow(view.model):
@@ -213,7 +213,7 @@ class SceneService:
         """Without a command being tried, the reward is shown for the recording chosen in the dropdown."""
         if self.sphere is None:
             return None
-        clip = next((c for c in self.view.clips if c.title == self.panel.chosen_clip), None)
+        clip = clip_for(self.panel.chosen_clip, self.view)
         return self.sphere.clip_points.get(clip.id) if clip is not None else None
 
     # --- trying a command -----------------------------------------------------------------------------------
@@ -223,7 +223,8 @@ class SceneService:
             self.panel.command_status.content = refusal
             return
         assert self.model.brain is not None and self.sphere is not None
-        clip = next(c for c in self.view.clips if c.title == title)
+        clip = clip_for(title, self.view)
+        assert clip is not None
         self._back_to_own_world()
         self.trial = CommandTrial(clip, self.sphere.clip_points[clip.id], self.model.brain)
         self.panel.clear_rewards()

@@ -6,7 +6,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from scene.household import ClipInfo, HouseholdView
-from scene.sphere import SphereData
+from scene.sphere import SphereData, command_title
 from scene.world import SimWorld
 
 if TYPE_CHECKING:
@@ -15,9 +15,19 @@ if TYPE_CHECKING:
 COMMAND_STEPS = 100  # one episode, as in evaluation
 
 
-def why_not(title: str, view: HouseholdView, brain: "Brain | None", sphere: SphereData | None) -> str | None:
-    """What stands in the way of trying the recording called `title`; None when it can be tried."""
-    clip = next((c for c in view.clips if c.title == title), None)
+def command_choices(view: HouseholdView) -> list[str]:
+    """ "Try a command" offers each of the household's commands once, in its own words."""
+    return [command_title(command) for command in view.commands]
+
+
+def clip_for(choice: str, view: HouseholdView) -> ClipInfo | None:
+    """The recording that stands for the command chosen (its first one)."""
+    return next((c for c in view.clips if command_title(c.command) == choice), None)
+
+
+def why_not(choice: str, view: HouseholdView, brain: "Brain | None", sphere: SphereData | None) -> str | None:
+    """What stands in the way of trying the command chosen; None when it can be tried."""
+    clip = clip_for(choice, view)
     if clip is None:
         return "Record a command first (Record page)."
     if brain is None or sphere is None or clip.id not in sphere.clip_points:

@@ -112,3 +112,19 @@ def test_unreadable_clips_are_left_off_the_sphere() -> None:
     assert np.isclose(np.linalg.norm(vectors[0]), 1.0, atol=1e-4)
     with pytest.raises(RuntimeError, match="no policy episode"):
         brain.act(np.zeros((32, 32, 3), np.uint8), vectors[0], np.zeros(2, np.float32))
+
+
+def test_try_a_command_offers_each_command_once_in_the_households_words() -> None:
+    from scene.household import ClipInfo, HouseholdView
+    from scene.trial import clip_for, command_choices
+
+    view = HouseholdView(household_id=1, robot=None)
+    view.clips = [
+        ClipInfo(1, "left (Alice, #1)", "name:left", "Alice"),
+        ClipInfo(2, "Left (Bob, #2)", "name:left", "Bob"),
+        ClipInfo(3, "recording 3 (Bob, #3)", "clip:3", "Bob"),
+    ]
+    assert command_choices(view) == ["recording 3", "left"]
+    chosen = clip_for("left", view)
+    assert chosen is not None and chosen.command == "name:left"
+    assert clip_for("right", view) is None
