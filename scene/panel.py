@@ -12,7 +12,7 @@ from scene.household import HouseholdView
 from scene.live import LiveRollout
 from scene.sphere import SphereData
 
-NO_CLIPS = "(no recordings yet)"
+NO_CLIPS = "(no commands recorded yet)"
 REWARD_LABEL = "How close to the command"
 REWARD_HINT = (
     "how close what the robot sees is to the command, as the active model hears it (higher is closer)"
@@ -32,13 +32,13 @@ class Panel:
             )
         with gui.add_folder("Try a command"):
             self.clip_choice = gui.add_dropdown(
-                "Command", (NO_CLIPS,), hint="one of your household's recordings"
+                "Command", (NO_CLIPS,), hint="one of your household's commands"
             )
             self.try_button = gui.add_button(
                 "Carry it out", hint="the active model drives the robot toward it"
             )
             self.stop_button = gui.add_button("Stop", color="red")
-            self.command_status = gui.add_markdown("Pick a recording and press “Carry it out”.")
+            self.command_status = gui.add_markdown("Pick a command and press “Carry it out”.")
         with gui.add_folder("Reward"):
             self.reward_number = gui.add_number(
                 REWARD_LABEL, 0.0, disabled=True, step=0.001, hint=REWARD_HINT

@@ -49,7 +49,7 @@ class CommandTrial:
 
     @property
     def started(self) -> str:
-        return f"Carrying out “{self.clip.title}”…"
+        return f"Carrying out “{command_title(self.clip.command)}”…"
 
     def step(self, world: SimWorld) -> str | None:
         """One step of the policy in `world`; when the episode is over, what happened (the world is reset)."""
@@ -62,4 +62,5 @@ class CommandTrial:
         names = world.intent_names
         sees = names[heard] if isinstance(heard, int) and 0 <= heard < len(names) else "nothing in particular"
         world.reset()
-        return f"Done with “{self.clip.title}” after {self.steps} steps; the robot ended at {sees}."
+        command = command_title(self.clip.command)
+        return f"Done with “{command}” after {self.steps} steps; the robot ended at {sees}."
