@@ -95,7 +95,12 @@ def _work(recipe) -> Path:  # type: ignore[no-untyped-def]
     return data_dir() / "base_build" / recipe.name
 
 
-def test_show_names_each_worlds_base_model_with_its_rooms_and_front_end() -> None:
+def test_show_names_each_worlds_base_model_with_its_rooms_and_front_end(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # nothing built on this machine, so the shipped models are what a household starts from
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "built"))
+    monkeypatch.setenv("VARBOT_DATA_DIR", str(tmp_path / "data"))
     result = CliRunner().invoke(app, ["models", "show"])
     assert result.exit_code == 0, result.output
     assert f"kuka: {SHIPPED} (adopted; trained in rooms: training; front end: mfcc)" in result.output
