@@ -28,7 +28,7 @@ def with_replay(
         return data, 0
     corpus = _parent_corpus(parent_var)
     images, heard = _fresh_views(world, count, data.images.shape[1], seed)
-    return _joined(data, corpus, images, heard, np.random.default_rng([seed, 41])), count
+    return joined_with_replay(data, corpus, images, heard, np.random.default_rng([seed, 41])), count
 
 
 def _parent_corpus(parent_var: Path):  # type: ignore[no-untyped-def]
@@ -81,7 +81,9 @@ def _fresh_views(world: str, count: int, image_size: int, seed: int) -> tuple[np
     return np.stack([image for image, _, _ in views]).astype(np.uint8), heard
 
 
-def _joined(data: HouseholdData, corpus, images: np.ndarray, heard: np.ndarray, rng: np.random.Generator):  # type: ignore[no-untyped-def]
+def joined_with_replay(  # type: ignore[no-untyped-def]
+    data: HouseholdData, corpus, images: np.ndarray, heard: np.ndarray, rng: np.random.Generator
+):
     from learning.var.dataset import triplet_sound_ids
 
     if corpus.features.shape[1:] != data.features.shape[1:]:

@@ -192,7 +192,7 @@ def test_polling_finds_runs_changed_since_the_last_look(admin, robot, no_triplet
             return False
 
     async def collect() -> list[str]:
-        stream = runs_routes._stream(
+        stream = runs_routes.event_stream(
             Connected(), admin.household_id, None, 0.6, poll, "unix:///nonexistent", 0.1
         )
         return [chunk async for chunk in stream]

@@ -135,7 +135,7 @@ def test_the_gate_says_what_changed_in_the_households_own_command_words() -> Non
 
 def test_replay_joins_views_of_the_training_room_paired_by_what_is_in_view_and_never_held_out() -> None:
     from learning.sounds import SoundCorpus
-    from worker.replay import _joined
+    from worker.replay import joined_with_replay
 
     data = _toy_data(np.ones((2, 100, 40), dtype=np.float32))
     data.held_out[:2] = True
@@ -146,7 +146,7 @@ def test_replay_joins_views_of_the_training_room_paired_by_what_is_in_view_and_n
     )  # fmt: skip
     heard = np.array([-1, 0, 3, -1, 2, 1])
     images = np.zeros((6, 16, 16, 3), dtype=np.uint8)
-    joined = _joined(data, corpus, images, heard, np.random.default_rng(2))
+    joined = joined_with_replay(data, corpus, images, heard, np.random.default_rng(2))
 
     replayed = joined.triplets[len(data.triplets) :]
     assert len(replayed) == 6 and not joined.held_out[len(data.triplets) :].any()

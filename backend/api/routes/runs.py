@@ -88,13 +88,15 @@ async def run_events(
             ]
 
     return StreamingResponse(
-        _stream(request, household_id, run_id, timeout, poll, settings.redis_url, settings.sse_poll_seconds),
+        event_stream(
+            request, household_id, run_id, timeout, poll, settings.redis_url, settings.sse_poll_seconds
+        ),
         media_type="text/event-stream",
         headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"},
     )
 
 
-async def _stream(
+async def event_stream(
     request: Request,
     household_id: PathId,
     run_id: int | None,
