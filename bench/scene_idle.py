@@ -25,7 +25,7 @@ import httpx
 import psutil
 import viser
 import websockets.sync.client
-from conditions import Conditions
+from conditions import Conditions, describe
 from result_files import write_result
 
 from varbot import services
@@ -137,7 +137,10 @@ def main() -> None:
     result = measure(args.window_s, args.idle_stop_s)
     result |= conditions.finish()
     write_result(RESULT, result)
-    print({k: v for k, v in result.items() if k.startswith("idle_cores")})
+    for key, cores in result.items():
+        if key.startswith("idle_cores"):
+            print(f"{key.removeprefix('idle_cores_').replace('_', ' '):<40} {cores:.4f} cores")
+    print(describe(result))
 
 
 if __name__ == "__main__":
