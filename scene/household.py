@@ -5,6 +5,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from sqlalchemy import select
+from sqlalchemy.orm import Session
 
 from backend import models
 from backend.blobs import BlobNotFound, LocalBlobStore
@@ -48,6 +49,26 @@ def default_household_id() -> int | None:
         return session.scalar(select(models.Household.id).order_by(models.Household.id).limit(1))
 
 
+def _most_recently_activated(session: Session, robots: list[models.Robot]) -> models.Robot | None:
+    """With no robot asked for, the scene shows the robot whose model was made active last: the one the
+    household is working with."""
+    by_id = {robot.id: robot for robot in robots}
+    newest = session.scalar(
+        select(models.ModelVersion.robot_id)
+        .where(
+            models.ModelVersion.robot_id.in_(list(by_id)),
+            models.ModelVersion.status == models.ModelStatus.ACTIVE,
+        )
+        .order_by(models.ModelVersion.activated_at.desc(), models.ModelVersion.id.desc())
+        .limit(1)
+    )
+    return by_id.get(newest) if newest is not None else None
+
+
+def _first_simulated(robots: list[models.Robot]) -> models.Robot | None:
+    return next((r for r in robots if r.kind.endswith("-sim")), robots[0] if robots else None)
+
+
 def load_view(household_id: int, robot_id: int | None) -> HouseholdView:
     with get_session_factory()() as session:
         robots = list(
@@ -58,7 +79,7 @@ def load_view(household_id: int, robot_id: int | None) -> HouseholdView:
             )
         )
         robot = next((r for r in robots if r.id == robot_id), None) if robot_id else None
-        robot = robot or next((r for r in robots if r.kind.endswith("-sim")), robots[0] if robots else None)
+        robot = robot or _most_recently_activated(session, robots) or _first_simulated(robots)
         view = HouseholdView(household_id=household_id, robot=robot)
         speakers = {
             user.id: user.display_name

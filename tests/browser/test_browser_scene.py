@@ -118,7 +118,9 @@ def test_the_scene_shows_the_sphere_and_a_live_camera(page, scene_ready: Stack, 
     frame = page.frame_locator("#scene")
     frame.locator("canvas").first.wait_for(timeout=60_000)
     # The status line names the sphere's points once they are drawn, and the loop's frame rate once it runs.
-    frame.get_by_text("8 views and 2 recordings on the sphere").wait_for(timeout=60_000)
+    # At least what this file uploaded: other browser tests may have added views and recordings before it.
+    on_sphere = re.compile(r"(?<!\d)([89]|[1-9]\d+) views and ([2-9]|[1-9]\d+) recordings on the sphere")
+    frame.get_by_text(on_sphere).wait_for(timeout=60_000)
     status = frame.get_by_text(re.compile(r"(?<![\d.])(?!0\.0 )\d+\.\d frames/s"))
     status.wait_for(timeout=60_000)
     first = _frame_png(page)
@@ -166,14 +168,15 @@ def test_two_households_watch_their_own_scenes_at_once(
     page, browser, stack: Stack, robot_id: int, console
 ) -> None:  # type: ignore[no-untyped-def]
     """Carol's household gets its own scene, started when she opens the page, while Alice watches hers."""
-    carol = ("--username", "carol", "--household", "garden home", "--display-name", "Carol")
+    # a name no other browser test uses (the pages tests invite a "carol" into Alice's household)
+    carol = ("--username", "gardener", "--household", "garden home", "--display-name", "Carol")
     subprocess.run(varbot_argv("admin", "create", *carol), env=stack.env, capture_output=True, check=True)
-    with stack.client("carol") as client:
+    with stack.client("gardener") as client:
         client.post("/robots", json={"name": "garden arm", "kind": "kuka-sim"}).raise_for_status()
     carols = browser.new_context(viewport={"width": 1280, "height": 900})
     carols.on("page", console.attach)
     carol_tab = carols.new_page()
-    sign_in(carol_tab, stack.url, "carol")
+    sign_in(carol_tab, stack.url, "gardener")
     try:
         for tab in (page, carol_tab):  # both open the Scene page before either scene is shown
             tab.goto(f"{stack.url}/scene")
@@ -187,7 +190,9 @@ def test_two_households_watch_their_own_scenes_at_once(
             assert "another household" not in tab.locator("#scene-message").inner_text()
         announced = sorted((stack.data_dir / "scene").glob("household-*.json"))
         urls = {json.loads(path.read_text())["url"] for path in announced}
-        assert len(announced) == 2 and len(urls) == 2, "one scene process per household"
+        own = {stack.data_dir / "scene" / f"household-{stack.household_id}.json"}
+        assert own <= set(announced) and len(announced) >= 2, "Alice's and Carol's scenes are announced"
+        assert len(urls) == len(announced), "one scene process per household (other tests' households too)"
         carol_tab.screenshot(path=str(ARTIFACTS / "scene-second-household.png"))
     finally:
         carols.close()
