@@ -8,6 +8,7 @@ from backend.api.routes import (
     attempts,
     auth,
     clips,
+    coaching,
     health,
     labels,
     members,
@@ -33,7 +34,7 @@ def create_app() -> FastAPI:
         docs_url="/docs",
         redoc_url=None,
     )
-    for module in (auth, members, robots, clips, snapshots, attempts, labels, runs, models, health):
+    for module in (auth, members, robots, clips, snapshots, attempts, coaching, labels, runs, models, health):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(health.router, include_in_schema=False)  # plain /health for process supervisors
     document_errors(app)

@@ -79,7 +79,7 @@ def try_commands(
         robot = _robot(session, robot_id, household_id, simulated=make_env is None)
         world = world_of_kind(robot.kind)
         asked = _commands(session, household_id, commands)
-        model = _robot_model(session, blobs, robot, world)
+        model = robot_model(session, blobs, robot, world)
         var = load_var(model.var_path).eval()
         goals = _goal_embeddings(session, blobs, asked, var, front_end_of(model.var_path), world)
         rng = np.random.default_rng(secrets.randbits(31))
@@ -145,7 +145,7 @@ def _commands(session: Any, household_id: int, keys: list[str]) -> list[Command]
     return [commands[key] for key in keys] or list(commands.values())
 
 
-def _robot_model(session: Any, blobs: BlobStore, robot: models.Robot, world: str) -> RobotModel:
+def robot_model(session: Any, blobs: BlobStore, robot: models.Robot, world: str) -> RobotModel:
     """The robot's active version, or the world's base model when it has none yet."""
     active = model_versions.active_version(session, robot.id)
     if active is not None:
@@ -179,14 +179,14 @@ def _goal_embeddings(
 
     clip_ids = sorted({clip_id for command in commands for clip_id in command.clip_ids})
     clips = {c.id: c for c in session.scalars(select(models.Clip).where(models.Clip.id.in_(clip_ids)))}
-    kind = _feature_kind(world)
+    kind = feature_kind(world)
     features = np.stack([features_from_bytes(blobs.get(clips[i].wav_key), kind, front_end) for i in clip_ids])
     with torch.inference_mode():
         embedded = var.encode_sound(torch.from_numpy(features.astype(np.float32)))
     return {clip_id: (embedded[row], features[row]) for row, clip_id in enumerate(clip_ids)}
 
 
-def _feature_kind(world: str) -> str:
+def feature_kind(world: str) -> str:
     try:
         return find_base(world).feature_kind
     except BaseModelMissing:

@@ -104,3 +104,22 @@ def try_commands(
         raise
     logger.info("stored %s attempts for robot %s", result["created"], robot_id)
     return {k: v for k, v in result.items() if k != "snapshot_ids"}
+
+
+@app.task(name=broker.TASK_COACH, **_ROBOT)
+def coach(
+    self: Task,
+    session_id: str,
+    robot_id: int,
+    household_id: int,
+    command: str,
+    seconds: int,
+    steps_per_s: float,
+) -> dict:
+    """A coaching-by-voice session (`worker.coaching`): the robot improves on one command at a person's pace
+    while a member's clips are its current sound; a refusal or failure is said in the session's status."""
+    from worker.coaching import coach as coach_session
+
+    result = coach_session(session_id, robot_id, household_id, command, seconds, steps_per_s)
+    logger.info("coaching session %s: %s", session_id, result["state"])
+    return result

@@ -21,7 +21,8 @@ from backend.errors import Invalid, NotFound, QuotaExceeded, Unavailable
 
 MAX_SIDE = 4096
 _SIDE_RULE = f"each side must be 1..{MAX_SIDE} pixels; send the camera frame at its own resolution"
-SOURCES = ("sim-capture", "upload", "camera", "attempt")  # attempt: backend/services/attempts.py
+# attempt: backend/services/attempts.py; coaching: backend/services/coaching.py
+SOURCES = ("sim-capture", "upload", "camera", "attempt", "coaching")
 CAPTURE_QUOTA_PREFIX = "varbot:capture-quota:"  # + household id + hour: views asked for in that hour
 _HOUR_S = 3600
 

@@ -1,3 +1,4 @@
+import { startCoaching } from "../coaching.js";
 import { pageFailed, pageReady, say, startPage } from "../shell.js";
 
 const SCENE_URL = "/scene/viser/";
@@ -15,7 +16,8 @@ async function sceneState() {
 
 async function main() {
   await startPage("scene");
-  pageReady(); // the scene page has no controls of its own
+  pageReady(); // the coaching panel shows itself once its controls work
+  startCoaching(document.getElementById("coaching")).catch(pageFailed);
   const message = document.getElementById("scene-message");
   const giveUpAt = Date.now() + STARTING_FOR_MS;
   let state = await sceneState();
