@@ -34,7 +34,7 @@ COPY --from=sources /src /src
 WORKDIR /src
 # The project without its heavy dependencies: every pinned requirement except the method's and the scene's.
 RUN pip install --upgrade pip setuptools wheel \
- && python -c "import tomllib; heavy = ('torch', 'torchaudio', 'pybullet', 'opencv', 'viser', 'yourdfpy', 'mido', 'matplotlib'); deps = tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies']; print('\n'.join(d for d in deps if not d.startswith(heavy)))" > /tmp/api-requirements.txt \
+ && python -c "import tomllib; heavy = ('torch', 'torchaudio', 'pybullet', 'opencv', 'viser', 'yourdfpy', 'mido', 'matplotlib', 'pyroomacoustics'); deps = tomllib.load(open('pyproject.toml', 'rb'))['project']['dependencies']; print('\n'.join(d for d in deps if not d.startswith(heavy)))" > /tmp/api-requirements.txt \
  && pip install -r /tmp/api-requirements.txt \
  && pip install --no-deps .
 

@@ -55,10 +55,16 @@ def prepare(args: argparse.Namespace):
     """The corpus (built if missing), every front end's features (cached), training and test views."""
     from learning.sounds import load_corpus
     from learning.sounds.build import build_corpora
-    from learning.var.dataset import collect_dataset
 
     build_corpora([SOUNDS], progress=False, log=lambda _: None)
     corpora = {name: load_corpus(SOUNDS, front_end=name, progress=True) for name in FRONT_ENDS}
+    return corpora, *kuka_views(args)
+
+
+def kuka_views(args: argparse.Namespace):
+    """The Kuka views the VARs train on (--views) and are scored on (--test-views, another seed)."""
+    from learning.var.dataset import collect_dataset
+
     size = args.image_size
     train_views = collect_dataset(
         WORLD, args.views, f"bench-front-ends-{args.views}-{size}px-seed{args.seed}", seed=args.seed,
@@ -68,7 +74,7 @@ def prepare(args: argparse.Namespace):
         WORLD, args.test_views, f"bench-front-ends-{args.test_views}-{size}px-test", seed=args.seed + 1000,
         image_size=size, workers=2,
     )  # fmt: skip
-    return corpora, train_views, test_views
+    return train_views, test_views
 
 
 def run_dir(front_end: str, args: argparse.Namespace) -> Path:
@@ -124,8 +130,9 @@ def score_var(front_end: str, corpus, test_views, args: argparse.Namespace) -> d
     } | {"image_to_command": evaluation["image_to_command"]}
 
 
-def score_frozen(corpus) -> dict:
-    """Nearest class centroid of the standardised mean- and max-pooled frozen embedding: no training."""
+def score_frozen(corpus, tiers: tuple[str, ...] = TIERS) -> dict:
+    """Nearest class centroid of the standardised mean- and max-pooled frozen features (the embedding, or
+    MFCC): no training."""
     import numpy as np
 
     def pooled(features: np.ndarray) -> np.ndarray:
@@ -138,7 +145,7 @@ def score_frozen(corpus) -> dict:
     centre, scale = known.mean(axis=0), known.std(axis=0) + 1e-6
     centroids = np.stack([((known - centre) / scale)[train.intent == k].mean(axis=0) for k in range(4)])
     scores = {}
-    for tier in TIERS:
+    for tier in tiers:
         clips = corpus.subset(tier)
         distances = ((((pooled(clips.features) - centre) / scale)[:, None] - centroids) ** 2).sum(axis=2)
         hits = distances.argmin(axis=1) == clips.intent

@@ -86,6 +86,14 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument(
         "--var-speed-copies", type=int, default=0, help="train the VAR with this many speed-perturbed copies"
     )
+    parser.add_argument(
+        "--var-front-end",
+        default="mfcc",
+        help="sound front end of a VAR trained here: mfcc or speech-embedding",
+    )
+    parser.add_argument(
+        "--var-room-copies", type=int, default=0, help="train the VAR with this many simulated-room copies"
+    )
     parser.add_argument("--image-size", type=int, default=None, help="default: the VAR's (96 when none)")
     parser.add_argument(
         "--policy-image-size", type=int, default=None, help="policy CNN input size (default: PPOConfig)"
@@ -184,14 +192,18 @@ def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
     dataset = row_dataset(world, args)
     schedule = f"-{args.var_max_steps}steps" if args.var_max_steps else ""
     speed = f"-speed{args.var_speed_copies}" if args.var_speed_copies else ""
-    run_dir = data_subdir("bench", "reproduce", "var", f"{Path(dataset).name}-{sounds}{schedule}{speed}")
+    rooms = f"-rooms{args.var_room_copies}" if args.var_room_copies else ""
+    front_end = "" if args.var_front_end == "mfcc" else f"-{args.var_front_end}"
+    name = f"{Path(dataset).name}-{sounds}{schedule}{speed}{rooms}{front_end}"
+    run_dir = data_subdir("bench", "reproduce", "var", name)
     final = run_dir / "final.pt"
     if not final.exists():
         ensure_dataset(world, sounds, args)
         schedule_args = ["--max-steps", str(args.var_max_steps)] if args.var_max_steps else []
         speed_args = ["--speed-copies", str(args.var_speed_copies)] if args.var_speed_copies else []
+        room_args = ["--room-copies", str(args.var_room_copies)] if args.var_room_copies else []
         varbot("var", "train", dataset, "--sounds", sounds, "--run-dir", str(run_dir), "--threads", "1",
-               *schedule_args, *speed_args)  # fmt: skip
+               "--front-end", args.var_front_end, *schedule_args, *speed_args, *room_args)  # fmt: skip
     return final
 
 
@@ -249,11 +261,12 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     complete = summary["env_steps"] >= config.num_updates * config.batch_size
     policy, payload = load_policy(run_dir / "checkpoint.pt")
     var = loaded_var.model if loaded_var is not None else None
-    corpus = load_corpus(sounds)
+    front_end = var.front_end if var is not None else "mfcc"  # goal clips as the VAR's f_S reads them
+    corpus = load_corpus(sounds, front_end=front_end)
     understood = goal_clips_understood(var, corpus) if var is not None else None
     evaluations = {}
     for split in [s for s in corpus.splits if s != "train"]:
-        goals = corpus_bank(sounds, split)
+        goals = corpus_bank(sounds, split, front_end=front_end)
         if var is not None:
             goals.embed(var)
         result = evaluate(policy, var, goals, world, config.image_size, split=split,

@@ -45,6 +45,10 @@ def parse_arguments() -> argparse.Namespace:
         help="torch threads; on a 2-core machine with other work running 1 is far faster",
     )
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--front-end", default="mfcc", help="sound front end: mfcc or speech-embedding")
+    parser.add_argument(
+        "--room-copies", type=int, default=0, help="simulated-room copies of every training clip"
+    )
     parser.add_argument(
         "--finetune",
         action="store_true",
@@ -60,11 +64,12 @@ def run_row(row: str, args: argparse.Namespace) -> dict:
     from learning.var.checkpoint import load_var
     from learning.var.dataset import collect_dataset
     from learning.var.evaluate import evaluate_var
+    from learning.var.model import VARConfig
     from learning.var.plot import plot_sphere
     from learning.var.train import TrainConfig, train
 
     world, sounds = ROWS[row]
-    corpus = load_corpus(sounds)
+    corpus = load_corpus(sounds, front_end=args.front_end)
     size = args.image_size
     conditions = Conditions()
     training_views = collect_dataset(
@@ -83,17 +88,21 @@ def run_row(row: str, args: argparse.Namespace) -> dict:
         image_size=size,
         workers=args.workers,
     )
-    run_dir = data_subdir("var", "bench", f"{row}-{args.triplets}-{size}px-{args.epochs}ep-seed{args.seed}")
+    run_dir = data_subdir(
+        "var", "bench", f"{result_key(row, args)}-{args.triplets}-{size}px-{args.epochs}ep-seed{args.seed}"
+    )
     config = TrainConfig(
         dataset=str(training_views.path),
         sounds=sounds,
         run_dir=str(run_dir),
+        model=VARConfig(front_end=args.front_end),
         epochs=args.epochs,
+        sound_room_copies=args.room_copies,
         seed=args.seed,
         threads=args.threads,
     )
     result = train(config)
-    var = load_var(result.checkpoint, manifest_hash=corpus.manifest_hash)
+    var = load_var(result.checkpoint, manifest_hash=corpus.manifest_hash, front_end=args.front_end)
     scores = evaluate_var(var, test_views, corpus, seed=args.seed)
     sphere = plot_sphere(
         var,
@@ -105,6 +114,8 @@ def run_row(row: str, args: argparse.Namespace) -> dict:
     return {
         "world": world,
         "sounds": sounds,
+        "front_end": args.front_end,
+        "room_copies": args.room_copies,
         "triplets": args.triplets,
         "reduced": args.triplets < PAPER_TRIPLETS,
         "image_size": size,
@@ -143,7 +154,7 @@ def run_finetune(row: str, result: dict, args: argparse.Namespace) -> dict:
     from sim.domain import DomainShift
 
     world, sounds = ROWS[row]
-    corpus = load_corpus(sounds)
+    corpus = load_corpus(sounds, front_end=args.front_end)
     size, shifted = args.image_size, DomainShift.unseen_room()
     conditions = Conditions()
     new_room = collect_dataset(
@@ -200,7 +211,9 @@ def run_finetune(row: str, result: dict, args: argparse.Namespace) -> dict:
         ("with replay", str(resolve(result["training_dataset"]))),
     ):
         run_dir = data_subdir(
-            "var", "bench", f"{row}-finetune-{args.finetune_views}-{'replay' if replay else 'plain'}"
+            "var",
+            "bench",
+            f"{result_key(row, args)}-finetune-{args.finetune_views}-{'replay' if replay else 'plain'}",
         )
         config = finetune_config(
             result["checkpoint"],
@@ -292,6 +305,14 @@ def print_table(results: dict) -> None:
         print(f"{row}: {describe(result)}")
 
 
+def result_key(row: str, args: argparse.Namespace) -> str:
+    """A row's key in the results (and its run folders): the row, and its front end and room copies beside
+    MFCC without copies, the paper's."""
+    front_end = "" if args.front_end == "mfcc" else f":{args.front_end}"
+    rooms = f":rooms{args.room_copies}" if args.room_copies else ""
+    return f"{row}{front_end}{rooms}"
+
+
 def _finished(result: dict | None, args: argparse.Namespace) -> bool:
     settings = {"triplets": args.triplets, "epochs": args.epochs, "image_size": args.image_size}
     return result is not None and all(result.get(k) == v for k, v in settings.items())
@@ -305,19 +326,20 @@ def main() -> None:
         sys.exit(f"unknown row(s) {unknown}; choose from {', '.join(ROWS)}")
     path = RESULTS / "var.json"
     results = json.loads(path.read_text()) if path.is_file() else {}
-    for row in rows:
+    keys = {row: result_key(row, args) for row in rows}
+    for row, key in keys.items():
         if not (
-            args.finetune and _finished(results.get(row), args)
+            args.finetune and _finished(results.get(key), args)
         ):  # a finished row is reused for fine-tuning
-            results[row] = run_row(row, args)
+            results[key] = run_row(row, args)
             write_result(path, results)
         if args.finetune:
-            results[row]["finetune"] = run_finetune(row, results[row], args)
+            results[key]["finetune"] = run_finetune(row, results[key], args)
             write_result(path, results)
-    print_table({row: results[row] for row in rows})
-    for row in rows:
-        if "finetune" in results[row]:
-            print_finetune_table(row, results[row]["finetune"])
+    print_table({key: results[key] for key in keys.values()})
+    for key in keys.values():
+        if "finetune" in results[key]:
+            print_finetune_table(key, results[key]["finetune"])
     print(f"written: {path}")
 
 

@@ -43,7 +43,9 @@ class SoundCorpus:
     def splits(self) -> list[str]:
         """The splits present, in the order train, then the unheard tiers."""
         order = (*SPEECH_SPLITS, *NOTE_SPLITS)
-        return sorted(set(self.split.tolist()), key=lambda s: order.index(s) if s in order else len(order))
+        return sorted(
+            set(self.split.tolist()), key=lambda s: (order.index(s) if s in order else len(order), s)
+        )
 
     def subset(self, split: str | list[str]) -> "SoundCorpus":
         wanted = [split] if isinstance(split, str) else list(split)

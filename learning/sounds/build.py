@@ -21,10 +21,20 @@ from tqdm import tqdm
 
 from core.paths import data_dir
 from learning.audio import PEAK_LEVEL, SAMPLE_RATE, decode_audio, encode_wav, features_from_bytes
+from learning.room_acoustics import ISM_ORDER, RoomRanges, record_in_room
 from learning.sounds import engines
 from learning.sounds.recordings import RECORDING_PARTS, crop_plan, varied_recordings
 from learning.sounds.sets import MIX, NOTE_MIDI, NOTES, OBJECTS, SoundSet, sound_set
-from learning.sounds.speakers import PROFILES, Profile, Speaker, instruments, speech_speakers
+from learning.sounds.speakers import (
+    MULTILINGUAL_SIZES,
+    PROFILES,
+    UNHEARD_ROOM,
+    Profile,
+    Speaker,
+    instruments,
+    multilingual_speakers,
+    speech_speakers,
+)
 
 BUILDER_VERSION = 2
 MANIFEST = "manifest.jsonl"
@@ -43,9 +53,11 @@ class ClipPlan:
     text: str | None = None
     note: str | None = None
     variation: dict[str, object] = field(default_factory=dict)
+    language: str | None = None  # multilingual sets only (never read by the VAR)
 
     def record(self, set_: SoundSet, duration_s: float) -> dict[str, object]:
-        return {
+        language = {} if self.language is None else {"language": self.language}
+        return language | {
             "clip": self.clip,
             "set": set_.name,
             "intent": self.intent,
@@ -148,6 +160,8 @@ def _plan(set_: SoundSet, profile: Profile, seed: int) -> list[ClipPlan]:
         return _plan_notes(profile)
     if set_ is MIX:
         return _plan_recordings(profile, rng)
+    if set_.languages:
+        return _plan_multilingual(set_, profile, seed, rng)
     return _plan_speech(set_, profile, seed, rng)
 
 
@@ -162,6 +176,28 @@ def _plan_speech(set_: SoundSet, profile: Profile, seed: int, rng: np.random.Gen
                     clip = f"clips/{_slug(speaker.id)}/{intent}-{wording_index}-{repeat}.wav"
                     variation = _speech_variation(speaker, rng, phrases)
                     plans.append(ClipPlan(len(plans), clip, intent, speaker, text=text, variation=variation))
+    return plans
+
+
+def _plan_multilingual(
+    set_: SoundSet, profile: Profile, seed: int, rng: np.random.Generator
+) -> list[ClipPlan]:
+    """Each speaker says its own language's word for every intent; the unheard-room tier's clips are recorded
+    in a simulated room of their own (variation "room": the seed of its draw)."""
+    size = MULTILINGUAL_SIZES[profile.name]
+    plans = []
+    for language, speaker in multilingual_speakers(set_.languages, size, seed):
+        for intent, text in enumerate(language.words):
+            for repeat in range(size.variations):
+                clip = f"clips/{_slug(speaker.id)}/{intent}-{repeat}.wav"
+                variation = _speech_variation(speaker, rng, phrases=False)
+                if speaker.split == UNHEARD_ROOM:
+                    variation["room"] = int(rng.integers(2**31))
+                plans.append(
+                    ClipPlan(
+                        len(plans), clip, intent, speaker, text, variation=variation, language=language.code
+                    )
+                )
     return plans
 
 
@@ -245,6 +281,8 @@ def _render_unit(
         speed_factor = float(plan.variation.get("speed_factor", 1.0))  # type: ignore[arg-type]
         if speed_factor != 1.0:
             waveform = _change_speed(waveform, speed_factor)
+        if "room" in plan.variation:
+            waveform = record_in_room(waveform, np.random.default_rng([seed, int(plan.variation["room"])]))  # type: ignore[call-overload]
         data = encode_wav(_peak_normalised(waveform))
         path = folder / plan.clip
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -360,6 +398,10 @@ def _recipe(set_: SoundSet, profile: Profile, seed: int, base: Path) -> dict[str
     }
     if set_ is MIX:
         recipe["objects"] = _recipe(OBJECTS, profile, seed, base)
+    if set_.languages:
+        recipe["languages"] = [asdict(language) for language in set_.languages]
+        recipe["multilingual_size"] = asdict(MULTILINGUAL_SIZES[profile.name])
+        recipe["rooms"] = asdict(RoomRanges()) | {"ism_order": ISM_ORDER}
     return recipe
 
 
@@ -376,7 +418,7 @@ def _clip_count(folder: Path) -> int:
 
 
 def _require_engines(chosen: list[SoundSet], profile: Profile) -> None:
-    speech = any(s is not NOTES for s in chosen)
+    speech = any(s is not NOTES and not s.languages for s in chosen)
     needed: set[str] = set()
     voices: set[str] = set()
     soundfonts: set[str] = set()
@@ -384,6 +426,8 @@ def _require_engines(chosen: list[SoundSet], profile: Profile) -> None:
         speakers = speech_speakers(profile, seed=0)
         needed |= {s.engine for s in speakers}
         voices |= {s.voice for s in speakers if s.engine == "festival"}
+    if any(s.languages for s in chosen):
+        needed.add("espeak-ng")
     if NOTES in chosen:
         needed.add("fluidsynth")
         soundfonts |= {i.soundfont for i in instruments(profile)}

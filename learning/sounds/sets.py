@@ -5,12 +5,24 @@ from dataclasses import dataclass
 
 
 @dataclass(frozen=True)
+class Language:
+    """One language of a multilingual set: the espeak-ng voice that speaks it and its words per intent."""
+
+    code: str  # espeak-ng language voice; names the language's unheard tier, unheard-<code>
+    name: str
+    words: tuple[str, ...]  # per intent
+    train_accents: tuple[str, ...]  # espeak-ng voices of this language the training speakers use
+    held_out_accents: tuple[str, ...]  # and those of the unheard speakers (the same when it has one)
+
+
+@dataclass(frozen=True)
 class SoundSet:
     name: str
     kind: str  # feature kind (learning.audio.FEATURE_KINDS)
     intent_names: tuple[str, ...]
     wordings: tuple[tuple[str, ...], ...] = ()  # per intent; empty for notes
     description: str = ""
+    languages: tuple[Language, ...] = ()  # a multilingual set: every speaker speaks one of these
 
 
 WORDSET = SoundSet(
@@ -126,8 +138,35 @@ MIX = SoundSet(
     'the Objects set, plus a jackhammer for "house" and dog barks for "dog" (real recordings)',
 )
 
+# The Wordset's four intents in six languages. Mandarin is written in digits: this espeak-ng's cmn dictionary
+# reads 零 and 三 as English letters, and reads 0 1 2 3 as líng yī èr sān.
+LANGUAGES = (
+    Language(
+        "en",
+        "English",
+        ("zero", "one", "two", "three"),
+        ("en-us", "en-gb-x-rp"),
+        ("en-gb-scotland", "en-029"),
+    ),
+    Language("de", "German", ("null", "eins", "zwei", "drei"), ("de",), ("de",)),
+    Language("es", "Spanish", ("cero", "uno", "dos", "tres"), ("es",), ("es-419",)),
+    Language("fr", "French", ("zéro", "un", "deux", "trois"), ("fr-fr",), ("fr-be", "fr-ch")),
+    Language("cmn", "Mandarin", ("0", "1", "2", "3"), ("cmn",), ("cmn",)),
+    Language("ru", "Russian", ("ноль", "один", "два", "три"), ("ru",), ("ru-lv",)),
+)
+
+WORDSET_MULTILINGUAL = SoundSet(
+    "wordset-multilingual",
+    "speech",
+    ("zero", "one", "two", "three"),
+    tuple(tuple(language.words[intent] for language in LANGUAGES) for intent in range(4)),
+    "the Wordset's zero..three in English, German, Spanish, French, Mandarin and Russian (espeak-ng), "
+    "with unheard speakers per language and in simulated rooms",
+    LANGUAGES,
+)
+
 SOUND_SETS: dict[str, SoundSet] = {
-    s.name: s for s in (WORDSET, OBJECTS, PHRASES_BLOCKS, PHRASES_OBJECTS, NOTES, MIX)
+    s.name: s for s in (WORDSET, OBJECTS, PHRASES_BLOCKS, PHRASES_OBJECTS, NOTES, MIX, WORDSET_MULTILINGUAL)
 }
 SET_NAMES: tuple[str, ...] = tuple(SOUND_SETS)
 # the paper's sets (and Objects, which Mix builds on); the phrase sets are built on request (`--sets all`)

@@ -4,6 +4,10 @@
   accents, plus recorded voices (flite kal, kal16, slt; festival kal_diphone, slt-hts).
 - unheard-easy: espeak-ng speakers built only from variants *and* accents that training never uses.
 - unheard-real-voices: flite awb and rms, festival ked — real people's voices no training step heard.
+- wordset-multilingual: espeak-ng speakers of each language; train from the training variants and that
+  language's training accents, unheard-<language> (e.g. unheard-de) from the held-out variants and accents,
+  and unheard-room: further held-out speakers of every language, recorded in simulated rooms
+  (learning.room_acoustics) with seeds no training copy uses.
 - notes: train = training instruments of FluidR3; unheard-instrument = held-out instruments of FluidR3;
   unheard-soundfont = every instrument of TimGM6mb, a soundfont training never used.
 """
@@ -12,11 +16,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from learning.sounds.sets import Language
+
 TRAIN = "train"
 UNHEARD_EASY = "unheard-easy"
 UNHEARD_REAL_VOICES = "unheard-real-voices"
 UNHEARD_INSTRUMENT = "unheard-instrument"
 UNHEARD_SOUNDFONT = "unheard-soundfont"
+UNHEARD_ROOM = "unheard-room"
 SPEECH_SPLITS = (TRAIN, UNHEARD_EASY, UNHEARD_REAL_VOICES)
 NOTE_SPLITS = (TRAIN, UNHEARD_INSTRUMENT, UNHEARD_SOUNDFONT)
 
@@ -112,6 +119,28 @@ PROFILES = {p.name: p for p in (DEFAULT, SMALL)}
 
 
 @dataclass(frozen=True)
+class MultilingualSize:
+    """Speakers per language of a multilingual set (kept apart from Profile, whose fields are in every other
+    set's recipe)."""
+
+    train: int
+    unheard: int
+    room: int
+    variations: int  # per speaker and word
+
+
+MULTILINGUAL_SIZES = {
+    "default": MultilingualSize(train=16, unheard=6, room=4, variations=3),
+    "small": MultilingualSize(train=2, unheard=1, room=1, variations=1),
+}
+
+
+def unheard_language(code: str) -> str:
+    """The tier of a language's unheard speakers."""
+    return f"unheard-{code}"
+
+
+@dataclass(frozen=True)
 class Speaker:
     """One voice (or instrument): `id` is unique across the corpus and names exactly one split."""
 
@@ -146,6 +175,31 @@ def speech_speakers(profile: Profile, seed: int) -> list[Speaker]:
             Speaker(id=f"{engine}:{voice}", engine=engine, voice=voice, split=split)
             for engine, voice in voices
         ]
+    return speakers
+
+
+def multilingual_speakers(
+    languages: tuple[Language, ...], size: MultilingualSize, seed: int
+) -> list[tuple[Language, Speaker]]:
+    """Every speaker of a multilingual set with the language it speaks, deterministic for `seed` (its accent
+    is one of that language's espeak-ng voices)."""
+    rng = np.random.default_rng([seed, 2])
+    speakers = []
+    for language in languages:
+        tiers = (
+            (TRAIN_VARIANTS, language.train_accents, TRAIN, size.train, "t"),
+            (
+                HELD_OUT_VARIANTS,
+                language.held_out_accents,
+                unheard_language(language.code),
+                size.unheard,
+                "u",
+            ),
+            (HELD_OUT_VARIANTS, language.held_out_accents, UNHEARD_ROOM, size.room, "r"),
+        )
+        for variants, accents, split, count, tag in tiers:
+            drawn = _espeak_speakers(rng, count, variants, accents, split, f"{language.code}-{tag}")
+            speakers += [(language, speaker) for speaker in drawn]
     return speakers
 
 

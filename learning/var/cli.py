@@ -122,6 +122,13 @@ def train(
     speed_range: Annotated[
         str, typer.Option(help="Playback-rate range of those copies, MIN,MAX.")
     ] = "0.85,1.15",
+    room_copies: Annotated[
+        int,
+        typer.Option(
+            help="Add this many recordings of every training clip in simulated rooms (reverberation, "
+            "background noise, a cheap microphone)."
+        ),
+    ] = 0,
     speakers: Annotated[
         str | None, typer.Option(help="Comma-separated speakers to train on (default: all of the split).")
     ] = None,
@@ -150,6 +157,7 @@ def train(
             sound_speakers=tuple(speakers.split(",")) if speakers else None,
             sound_speed_copies=speed_copies,
             sound_speed_range=_speed_range(speed_range),
+            sound_room_copies=room_copies,
             seed=seed,
             threads=threads,
         )
@@ -174,6 +182,13 @@ def finetune(
     epochs: int = 20,
     lr: float = 3e-4,
     patience: int = 3,
+    front_end: Annotated[
+        str | None,
+        typer.Option(help="Sound front end: the checkpoint's (the default); any other is refused."),
+    ] = None,
+    room_copies: Annotated[
+        int, typer.Option(help="Add this many recordings of every new clip in simulated rooms.")
+    ] = 0,
     seed: int = 0,
     threads: int = 2,
 ) -> None:
@@ -195,6 +210,8 @@ def finetune(
             epochs=epochs,
             lr=lr,
             patience=patience,
+            front_end=front_end,
+            sound_room_copies=room_copies,
             seed=seed,
             threads=threads,
         )

@@ -12,6 +12,7 @@ import multiprocessing
 import queue
 import time
 import traceback
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -282,10 +283,13 @@ class SoundBank:
         speed_copies: int = 0,
         speed_range: tuple[float, float] = (0.85, 1.15),
         seed: int = 0,
+        room_copies: int = 0,
     ) -> "SoundBank":
         """The clips of these splits (and speakers), plus `speed_copies` re-renderings of each, played faster
         or slower (tempo, pitch and formants together, as a longer or shorter vocal tract would), for voices
-        training never heard. Copies are refused for sets whose commands may be pitches (notes)."""
+        training never heard, and `room_copies` recordings of each in simulated rooms (reverberation, noise,
+        a cheap microphone: learning.room_acoustics), for rooms it never heard. Speed copies are refused for
+        sets whose commands may be pitches (notes)."""
         chosen = corpus.subset(list(splits) if not isinstance(splits, str) else splits)
         if speakers:
             chosen = chosen.by_speakers(speakers)
@@ -303,6 +307,10 @@ class SoundBank:
             )
             features = np.concatenate([features, copies])
             intent = np.concatenate([intent, np.repeat(chosen.intent, speed_copies)])
+        if room_copies:
+            copies = room_recorded_features(chosen.clip, corpus.kind, room_copies, seed, corpus.front_end)
+            features = np.concatenate([features, copies])
+            intent = np.concatenate([intent, np.repeat(chosen.intent, room_copies)])
         return cls.build(features, intent, len(corpus.intent_names))
 
     @property
@@ -330,18 +338,50 @@ def speed_perturbed_features(
     """Features of `copies` speed-perturbed renderings of every clip, clip by clip (rows c·copies..)."""
     import torch
 
-    from learning.audio import decode_audio, feature_shape, features_from_waveform
     from learning.augment import perturb_speed
 
     generator = torch.Generator().manual_seed(seed)
-    rows = []
-    for path in tqdm(paths, desc=f"speed copies ×{copies}", unit="clip", leave=False):
-        waveform, _ = decode_audio(Path(path).read_bytes())
+
+    def speed_copies(waveform: np.ndarray) -> list[np.ndarray]:
         slowed_length = math.ceil(len(waveform) / min(speed[0], 1.0)) + 1  # room for the slowest copy
         padded = np.pad(waveform, (0, slowed_length - len(waveform)))
-        batch = torch.from_numpy(padded).repeat(copies, 1)
-        for wave in perturb_speed(batch, generator, speed).numpy():
-            rows.append(features_from_waveform(wave, kind, front_end))
+        return list(perturb_speed(torch.from_numpy(padded).repeat(copies, 1), generator, speed).numpy())
+
+    return _features_of_copies(paths, kind, front_end, speed_copies, f"speed copies ×{copies}")
+
+
+# Room copies draw their rooms from this stream, apart from the corpora's unheard-room tiers' streams.
+ROOM_COPY_STREAM = 3
+
+
+def room_recorded_features(
+    paths: np.ndarray, kind: str, copies: int, seed: int, front_end: str = "mfcc"
+) -> np.ndarray:
+    """Features of `copies` recordings of every clip in simulated rooms, clip by clip (rows c·copies..)."""
+    from learning.room_acoustics import record_in_room
+
+    rng = np.random.default_rng([seed, ROOM_COPY_STREAM])
+
+    def room_copies(waveform: np.ndarray) -> list[np.ndarray]:
+        return [record_in_room(waveform, rng) for _ in range(copies)]
+
+    return _features_of_copies(paths, kind, front_end, room_copies, f"room copies ×{copies}")
+
+
+def _features_of_copies(
+    paths: np.ndarray,
+    kind: str,
+    front_end: str,
+    copies_of: Callable[[np.ndarray], list[np.ndarray]],
+    description: str,
+) -> np.ndarray:
+    """Features of the waveforms `copies_of` makes from every clip, in clip order."""
+    from learning.audio import decode_audio, feature_shape, features_from_waveform
+
+    rows = []
+    for path in tqdm(paths, desc=description, unit="clip", leave=False):
+        waveform, _ = decode_audio(Path(path).read_bytes())
+        rows += [features_from_waveform(copy, kind, front_end) for copy in copies_of(waveform)]
     return np.stack(rows) if rows else np.zeros((0, *feature_shape(kind, front_end)), np.float32)
 
 

@@ -7,6 +7,7 @@ triplets in every batch so that the old sounds and rooms are not forgotten.
 
 from pathlib import Path
 
+from learning.front_ends import check_front_end
 from learning.var.checkpoint import read_checkpoint
 from learning.var.model import VARConfig
 from learning.var.train import TrainConfig, TrainResult, train
@@ -22,10 +23,14 @@ def finetune_config(
     replay_dataset: str | None = None,
     replay_sounds: str | None = None,
     replay_fraction: float = 0.25,
+    front_end: str | None = None,
     **overrides,
 ) -> TrainConfig:
-    """A TrainConfig for fine-tuning `checkpoint`; the model shape comes from the checkpoint itself."""
+    """A TrainConfig for fine-tuning `checkpoint`; the model shape comes from the checkpoint itself.
+    `front_end`, when given, must be the checkpoint's: a fine-tune keeps its parent's sound front end."""
     payload = read_checkpoint(checkpoint)
+    if front_end is not None:
+        require_front_end(checkpoint, VARConfig.from_dict(payload["config"]).front_end, front_end)
     settings = dict(
         dataset=dataset,
         sounds=sounds,
@@ -46,6 +51,17 @@ def finetune_config(
     )
     settings.update(overrides)
     return TrainConfig(**settings)
+
+
+def require_front_end(checkpoint: str | Path, parent: str, asked: str) -> None:
+    """Refuse a fine-tune asked for with another front end than its parent VAR's."""
+    check_front_end(asked)
+    if asked != parent:
+        raise ValueError(
+            f"{checkpoint} is a VAR with the {parent!r} sound front end and a fine-tune keeps its parent's: "
+            f"leave --front-end out (or give {parent!r}), or train a new VAR with "
+            f"`varbot var train --front-end {asked}`."
+        )
 
 
 def finetune(

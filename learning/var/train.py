@@ -46,6 +46,7 @@ class TrainConfig:
     sound_speakers: tuple[str, ...] | None = None  # restrict the clips to these speakers (a new voice)
     sound_speed_copies: int = 0  # add this many speed-perturbed renderings of every clip to the bank
     sound_speed_range: tuple[float, float] = (0.85, 1.15)  # playback-rate factors of those copies
+    sound_room_copies: int = 0  # add this many recordings of every clip in simulated rooms to the bank
     model: VARConfig = field(default_factory=VARConfig)  # image_size is taken from the dataset
     epochs: int = 12
     max_steps: int | None = None  # overrides epochs: the schedule length in optimiser steps
@@ -164,7 +165,7 @@ class _Trainer:
         train_rows, val_rows = _split_rows(len(images), config.val_fraction, config.seed)
         bank = SoundBank.from_corpus(
             corpus, config.sound_splits, config.sound_speakers, config.sound_speed_copies,
-            config.sound_speed_range, config.seed,
+            config.sound_speed_range, config.seed, config.sound_room_copies,
         )  # fmt: skip
         self.source = TripletSource(images, bank, train_rows, val_rows)
         self.replay = self._replay_source()

@@ -89,11 +89,11 @@ def test_small_build_holds_every_set_intent_and_split(small_root: Path) -> None:
         assert corpus.features.shape == (n, 100, 40) and corpus.features.dtype == np.float32
         assert corpus.intent.dtype == np.int64 and set(corpus.intent.tolist()) == {0, 1, 2, 3}
         assert corpus.speaker.shape == corpus.split.shape == (n,)
-        expected = (
-            {"train", "unheard-instrument", "unheard-soundfont"}
-            if name == "notes"
-            else {"train", "unheard-easy", "unheard-real-voices"}
-        )
+        expected = {
+            "notes": {"train", "unheard-instrument", "unheard-soundfont"},
+            "wordset-multilingual": {"train", "unheard-room"}
+            | {f"unheard-{language.code}" for language in SOUND_SETS[name].languages},
+        }.get(name, {"train", "unheard-easy", "unheard-real-voices"})
         assert set(corpus.splits) == expected
         assert len(corpus.intent_names) == 4
         assert not (np.abs(corpus.features).sum(axis=(1, 2)) == 0).any(), "a clip came out silent"

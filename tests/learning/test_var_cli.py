@@ -40,6 +40,8 @@ def test_collect_train_finetune_eval_and_plot_from_the_command_line(small_wordse
         "1",
         "--speed-copies",
         "1",
+        "--room-copies",
+        "1",
     )
     assert result.exit_code == 0, output
     checkpoint = tmp_path / "run" / "final.pt"
@@ -58,6 +60,13 @@ def test_collect_train_finetune_eval_and_plot_from_the_command_line(small_wordse
         "1",
     )
     assert result.exit_code == 0, output
+    result, output = invoke(
+        "finetune", str(checkpoint), "cli-kuka", "--front-end", "speech-embedding",
+        "--run-dir", str(tmp_path / "refused"),
+    )  # fmt: skip
+    assert result.exit_code == 2, output
+    assert "a VAR with the 'mfcc' sound front end and a fine-tune keeps its parent's" in output
+    assert not (tmp_path / "refused").exists()
     result, output = invoke("eval", str(checkpoint), "cli-kuka", "--output", str(tmp_path / "eval.json"))
     assert result.exit_code == 0, output
     assert set(json.loads((tmp_path / "eval.json").read_text())["tiers"]) >= {

@@ -1,0 +1,75 @@
+"""The multilingual Wordset: the same four intents in six languages, unheard speakers per language and in
+simulated rooms, and nothing of the language or the words in what a VAR reads."""
+
+import dataclasses
+import json
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from learning.sounds import SoundCorpus, engines, load_corpus
+from learning.sounds.build import MANIFEST, build_corpora
+from learning.sounds.sets import SOUND_SETS
+from learning.sounds.speakers import HELD_OUT_VARIANTS, TRAIN_VARIANTS
+from learning.var.dataset import SoundBank
+
+NAME = "wordset-multilingual"
+SET = SOUND_SETS[NAME]
+
+
+@pytest.fixture(scope="module")
+def small_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    missing = engines.missing_packages({"espeak-ng"})
+    assert not missing, f"Debian packages missing: {missing} (sudo bash scripts/install-system-packages.sh)"
+    root = tmp_path_factory.mktemp("multilingual")
+    build_corpora([NAME], profile="small", root=root, progress=False, log=lambda _: None)
+    return root
+
+
+def records(root: Path) -> list[dict]:
+    return [json.loads(line) for line in (root / "sounds" / NAME / MANIFEST).read_text().splitlines()]
+
+
+def test_at_least_five_languages_each_with_a_word_for_every_intent() -> None:
+    assert len(SET.languages) >= 5
+    assert {"en", "de", "es", "fr", "cmn"} <= {language.code for language in SET.languages}
+    for language in SET.languages:
+        assert len(language.words) == len(SET.intent_names) == 4
+        assert len(set(language.words)) == 4, language
+
+
+def test_every_language_has_its_own_unheard_speakers_and_every_tier_every_intent(small_root: Path) -> None:
+    corpus = load_corpus(NAME, small_root)
+    codes = [language.code for language in SET.languages]
+    assert set(corpus.splits) == {"train", "unheard-room", *(f"unheard-{code}" for code in codes)}
+    for split in corpus.splits:
+        assert set(corpus.subset(split).intent.tolist()) == {0, 1, 2, 3}, split
+    by_language = defaultdict(set)
+    for record in records(small_root):
+        by_language[record["language"]].add(record["split"])
+        language = next(language for language in SET.languages if language.code == record["language"])
+        assert record["text"].rstrip(".!?") == language.words[record["intent"]]
+        variants = TRAIN_VARIANTS if record["split"] == "train" else HELD_OUT_VARIANTS
+        assert record["speaker_params"]["voice"] in variants
+        assert ("room" in record["variation"]) == (record["split"] == "unheard-room")
+    assert by_language == {code: {"train", f"unheard-{code}", "unheard-room"} for code in codes}
+    assert not (np.abs(corpus.features).sum(axis=(1, 2)) == 0).any(), "a clip came out silent"
+
+
+def test_the_same_seed_builds_the_same_clips(small_root: Path, tmp_path: Path) -> None:
+    build_corpora([NAME], profile="small", root=tmp_path, progress=False, log=lambda _: None)
+    assert records(tmp_path) == records(small_root)
+    np.testing.assert_array_equal(
+        load_corpus(NAME, tmp_path).features, load_corpus(NAME, small_root).features
+    )
+
+
+def test_no_language_or_transcript_reaches_the_var(small_root: Path) -> None:
+    fields = {field.name for field in dataclasses.fields(SoundCorpus)}
+    assert not fields & {"language", "text", "transcript", "intent_name"}
+    corpus = load_corpus(NAME, small_root)
+    bank = SoundBank.from_corpus(corpus)  # what triplets are drawn from: features and intents only
+    assert {field.name for field in dataclasses.fields(bank)} == {"features", "intent", "starts", "counts"}
+    assert len(bank.intent) == len(corpus.subset("train").intent)
