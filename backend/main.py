@@ -15,6 +15,7 @@ from backend.api.routes import (
     models,
     robots,
     runs,
+    scene,
     snapshots,
 )
 from backend.blobs import BlobNotFound
@@ -34,7 +35,20 @@ def create_app() -> FastAPI:
         docs_url="/docs",
         redoc_url=None,
     )
-    for module in (auth, members, robots, clips, snapshots, attempts, coaching, labels, runs, models, health):
+    for module in (
+        auth,
+        members,
+        robots,
+        clips,
+        snapshots,
+        attempts,
+        coaching,
+        labels,
+        runs,
+        models,
+        scene,
+        health,
+    ):
         app.include_router(module.router, prefix=API_PREFIX)
     app.include_router(health.router, include_in_schema=False)  # plain /health for process supervisors
     document_errors(app)

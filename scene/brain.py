@@ -19,7 +19,7 @@ from learning.var.checkpoint import load_var
 
 @dataclass
 class Goal:
-    clip_id: int
+    clip_id: int | None  # None: a live voice, kept nowhere
     embedding: np.ndarray  # (d,) f_S(S_goal)
 
 

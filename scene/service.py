@@ -9,6 +9,9 @@ changed is handed to the loop as requests, so that only the loop touches the sim
 
 While a training run publishes its rollouts and no command is tried, the view follows the run's environment 0
 instead (`scene.following`); when its messages stop the robot goes back to looking around on its own.
+
+What the app asks (`scene.inbox`): re-read the household's data at once (a model was activated), show another
+of its robots, or carry out what a member just said ("try it now", `scene.voice_try`).
 """
 
 import queue
@@ -19,17 +22,21 @@ from typing import Any
 
 import numpy as np
 
+from backend import scene_requests
 from core.robots import world_of_kind
 from scene import endpoint
 from scene.access import LOOPBACK, guarded_viser_server, new_secret
 from scene.active_model import ActiveModel
 from scene.following import RunFollowing
 from scene.household import HouseholdView
+from scene.inbox import SceneInbox
+from scene.legend import SphereLegend
 from scene.live import FOLLOW_TIMEOUT_S, LiveRollout
 from scene.panel import Panel, status_line
 from scene.refresh import HouseholdRefresh
-from scene.sphere import SphereData, SphereView, reward, sphere_for
-from scene.trial import CommandTrial, clip_for, command_choices, why_not
+from scene.sphere import SphereData, SphereView, command_title, reward, sphere_for
+from scene.trial import CommandTrial, clip_for, closest_command, command_choices, why_not
+from scene.voice_try import TryReports, VoiceTrial, VoiceTry, accepted, voice_trial
 from scene.world import SimWorld
 from scene.world_view import WorldView
 
@@ -75,6 +82,9 @@ class SceneService:
         )
         self.world_view = WorldView(self.server)
         self.sphere_view = SphereView(self.server.scene)
+        self.legend = SphereLegend(self.server.gui)
+        self.inbox = SceneInbox(household_id, self._on_request, self.stop_event)
+        self.try_reports = TryReports()
 
     # --- lifetime -------------------------------------------------------------------------------------------
     @property
@@ -90,6 +100,7 @@ class SceneService:
         endpoint.announce(self.url, self.household_id, self.secret)
         self.refresh.once()  # first picture before the loop starts
         self.refresh.start()
+        self.inbox.start()
         self.run_following.start()
         period = 1.0 / self.fps
         try:
@@ -128,7 +139,9 @@ class SceneService:
     def apply(self, view: HouseholdView) -> None:
         """Take in freshly read household data: new recordings, another robot or model, new sphere points."""
         self.view = view
+        self._tell_shown_robot(view)
         self.panel.offer_clips(command_choices(view))
+        self.legend.show(view.commands)
         if self.following is None:  # while following, the run decides the world
             self._ask_for_robot_world(view)
         if self.model.follow(view.model):
@@ -140,6 +153,10 @@ class SceneService:
             self.sphere = sphere_for(view, brain, self.model.version_id)
             self.requests.put(("sphere", None))
         self.show_status()
+
+    def _tell_shown_robot(self, view: HouseholdView) -> None:
+        """The Scene page's robot choice shows which robot this is."""
+        scene_requests.write_shown_robot(self.household_id, view.robot.id if view.robot else None)
 
     def _refresh_failed(self, error: Exception) -> None:
         self.panel.status.content = f"**Could not read the household's data:** {error}"
@@ -181,8 +198,10 @@ class SceneService:
                 self.show_status()  # after the points: a status naming them comes once they are drawn
             elif kind == "try":
                 self._start_trial(value)
+            elif kind == "voice":
+                self._start_voice_trial(value)
             elif kind == "stop":
-                self.trial = None
+                self._replace_trial(None)
                 self.panel.command_status.content = "Stopped. The robot looks around at random."
 
     def _build_world(self, name: str) -> None:
@@ -225,10 +244,47 @@ class SceneService:
         assert self.model.brain is not None and self.sphere is not None
         clip = clip_for(title, self.view)
         assert clip is not None
+        goal = self.sphere.clip_points[clip.id]
+        self._begin(CommandTrial(command_title(clip.command), goal, self.model.brain, self._closest, clip.id))
+
+    def _closest(self, vector: np.ndarray) -> str | None:
+        return closest_command(vector, self.sphere, self.view)
+
+    def _begin(self, trial: CommandTrial) -> None:
         self._back_to_own_world()
-        self.trial = CommandTrial(clip, self.sphere.clip_points[clip.id], self.model.brain)
+        self._replace_trial(trial)
         self.panel.clear_rewards()
-        self.panel.command_status.content = self.trial.started
+        self.panel.command_status.content = trial.started
+
+    def _replace_trial(self, trial: CommandTrial | None) -> None:
+        """A live voice's try that is cut short says so on its page."""
+        if isinstance(self.trial, VoiceTrial) and self.trial is not trial:
+            self.trial.interrupted("Stopped before the end: someone pressed Stop or tried another command.")
+        self.trial = trial
+
+    # --- "try it now" with a live voice -------------------------------------------------------------------
+    def _on_request(self, request: dict[str, Any]) -> None:
+        """What the app asks (the inbox's thread): re-read now, show another robot, or try a live voice."""
+        kind = request.get("type")
+        if kind == "refresh":
+            self.refresh.wake()
+        elif kind == "show_robot":
+            self.refresh.show_robot(int(request["robot_id"]))
+        elif kind == "try":
+            self._take_voice(VoiceTry.from_request(request, self.household_id))
+
+    def _take_voice(self, voice: VoiceTry) -> None:
+        if not accepted(voice, self.try_reports):
+            return
+        shown = self.view.robot.id if self.view.robot is not None else None
+        if voice.robot_id is not None and voice.robot_id != shown:
+            self.refresh.show_robot(voice.robot_id)  # its model and world come before the try, in order
+        self.requests.put(("voice", voice))
+
+    def _start_voice_trial(self, voice: VoiceTry) -> None:
+        trial = voice_trial(voice, self.model.brain, self._closest, self.try_reports)
+        if trial is not None:
+            self._begin(trial)
 
     # --- following a training run ---------------------------------------------------------------------------
     def _follow(self, live: LiveRollout) -> None:

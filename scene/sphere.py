@@ -24,6 +24,8 @@ PALETTE = [
     (106, 153, 78),
 ]
 UNASSIGNED = (150, 150, 150)
+CURRENT_COLOUR = (255, 255, 255)  # the marker of what the robot sees now
+GOAL_COLOUR = (255, 200, 0)  # the marker of the command being carried out
 
 
 @dataclass
@@ -125,10 +127,10 @@ class SphereView:
         )
         self.scene.add_label("/sphere/title", "embedding sphere", position=(0.0, 0.0, radius * 1.25))
         self.current_marker = self.scene.add_icosphere(
-            "/sphere/current", radius=radius * 0.06, color=(255, 255, 255), visible=False
+            "/sphere/current", radius=radius * 0.06, color=CURRENT_COLOUR, visible=False
         )
         self.goal_marker = self.scene.add_icosphere(
-            "/sphere/goal", radius=radius * 0.08, color=(255, 200, 0), visible=False
+            "/sphere/goal", radius=radius * 0.08, color=GOAL_COLOUR, visible=False
         )
 
     def draw(self, sphere: SphereData | None, view: HouseholdView) -> None:

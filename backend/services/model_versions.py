@@ -6,7 +6,7 @@ from typing import Any
 from sqlalchemy import delete, select
 from sqlalchemy.orm import Session
 
-from backend import models
+from backend import models, scene_requests
 from backend.errors import Conflict, Invalid, NotFound
 from backend.schemas import ModelVersionPublic
 
@@ -78,6 +78,7 @@ def activate(session: Session, version: models.ModelVersion) -> models.ModelVers
     _switch(session, current, version)
     version.previous_active_id = current.id if current is not None else version.previous_active_id
     session.commit()
+    scene_requests.ask_to_refresh(version.household_id)  # the scene shows the new model at once
     return version
 
 
@@ -88,6 +89,7 @@ def rollback(session: Session, robot: models.Robot) -> models.ModelVersion:
     target = session.get_one(models.ModelVersion, current.previous_active_id)
     _switch(session, current, target)
     session.commit()
+    scene_requests.ask_to_refresh(robot.household_id)
     return target
 
 

@@ -7,7 +7,7 @@ import pytest
 import yaml
 
 REPO = Path(__file__).resolve().parents[2]
-VARBOT_SERVICES = {"migrate", "api", "worker-training", "worker-robot", "scene"}
+VARBOT_SERVICES = {"migrate", "api", "worker-training", "worker-robot"}  # scenes: on demand, by the API
 
 
 @pytest.fixture(scope="module")
@@ -69,11 +69,10 @@ def test_the_api_starts_after_healthy_data_services_and_completed_migrations(com
         assert depends["redis"]["condition"] == "service_healthy", name
         assert depends["migrate"]["condition"] == "service_completed_successfully", name
     assert services["migrate"]["command"][1:] == ["db", "upgrade"]
-    assert services["scene"]["depends_on"]["api"]["condition"] == "service_healthy"
     assert services["api"]["healthcheck"]["test"]
 
 
-def test_workers_api_and_scene_share_one_blob_volume_and_environment_driven_settings(compose: dict) -> None:
+def test_workers_and_api_share_one_blob_volume_and_environment_driven_settings(compose: dict) -> None:
     services = compose["services"]
     for name in VARBOT_SERVICES - {"migrate"}:
         volumes = services[name]["volumes"]

@@ -1,5 +1,6 @@
 import { api, uploadWithProgress } from "../api.js";
 import { Recorder } from "../recorder.js";
+import { listening, tryItNow } from "../try_now.js";
 import { describeCounts, groupCommands, targetsSentence } from "../commands.js";
 import { element, pageFailed, pageReady, savedRobot, say, startPage, when } from "../shell.js";
 
@@ -16,6 +17,7 @@ let me;
 let take = null; // {wav, seconds, peak, rms}
 let takeUrl = null;
 let holding = false;
+let robot = null; // the household's chosen robot: "try it now" asks it
 
 const recorder = new Recorder((level) => {
   meterBar.style.width = `${Math.round(level * 100)}%`;
@@ -39,7 +41,10 @@ async function begin() {
   talk.setAttribute("aria-pressed", "true");
   talk.textContent = "Recording… let go to stop";
   say(message, "Recording…");
+  if (tryingNow()) listening($("try-message"));
 }
+
+const tryingNow = () => $("try-now").checked;
 
 function finish() {
   if (!recorder.recording) {
@@ -60,6 +65,11 @@ function finish() {
   }
   if (result.seconds > MAX_SECONDS) {
     say(message, `That was ${result.seconds.toFixed(1)} s; commands can be at most ${MAX_SECONDS} s. Record a shorter one.`, "warn");
+    return;
+  }
+  if (tryingNow()) {
+    say(message, "");
+    tryItNow(result.wav, robot && robot.id, $("try-message"));
     return;
   }
   take = result;
@@ -161,7 +171,7 @@ function showNameField() {
 }
 
 async function showTargets() {
-  const robot = savedRobot(await api("/robots"));
+  robot = savedRobot(await api("/robots"));
   $("targets").hidden = !robot;
   if (robot) $("targets").textContent = targetsSentence(robot);
 }
@@ -212,6 +222,7 @@ async function main() {
     event.target.value = "";
   });
   $("command").addEventListener("change", showNameField);
+  $("try-now").addEventListener("change", () => ($("try-now-help").hidden = !tryingNow()));
   talk.disabled = $("file").disabled = false; // disabled in the HTML until their handlers exist
   pageReady();
   await Promise.all([listClips(), listCommands(), showTargets()]);

@@ -1,5 +1,6 @@
 import { startCoaching } from "../coaching.js";
 import { pageFailed, pageReady, say, startPage } from "../shell.js";
+import { mountSceneControls } from "./scene_controls.js";
 
 const SCENE_URL = "/scene/viser/";
 const STARTING_POLL_MS = 1000; // the household's scene is started on demand: asked again until it is up
@@ -16,6 +17,8 @@ async function sceneState() {
 
 async function main() {
   await startPage("scene");
+  const controls = mountSceneControls(); // before the page says it is ready: its handlers are attached
+  controls.refresh();
   pageReady(); // the coaching panel shows itself once its controls work
   startCoaching(document.getElementById("coaching")).catch(pageFailed);
   const message = document.getElementById("scene-message");
@@ -32,6 +35,7 @@ async function main() {
     return;
   }
   say(message, "");
+  controls.refresh(); // the scene is up: it says which robot it shows
   const frame = document.getElementById("scene");
   frame.src = SCENE_URL;
   frame.hidden = false;
