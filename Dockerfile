@@ -7,6 +7,7 @@
 FROM python:3.11-slim-bookworm AS sources
 WORKDIR /src
 COPY pyproject.toml README.md alembic.ini ./
+COPY core ./core
 COPY varbot ./varbot
 COPY backend ./backend
 COPY sim ./sim
@@ -14,6 +15,7 @@ COPY learning ./learning
 COPY worker ./worker
 COPY scene ./scene
 COPY migrations ./migrations
+COPY frontend ./frontend
 
 FROM python:3.11-slim-bookworm AS build-full
 ENV PIP_NO_CACHE_DIR=1 PIP_DISABLE_PIP_VERSION_CHECK=1
@@ -39,7 +41,8 @@ RUN pip install --upgrade pip setuptools wheel \
  && pip install --no-deps .
 
 FROM python:3.11-slim-bookworm AS runtime-base
-ENV PYTHONUNBUFFERED=1 VARBOT_DATA_DIR=/data PATH=/opt/venv/bin:$PATH
+# PYTHONPATH: the sources under /app come first, so that the pages (/app/frontend) are found beside them.
+ENV PYTHONUNBUFFERED=1 VARBOT_DATA_DIR=/data PATH=/opt/venv/bin:$PATH PYTHONPATH=/app
 RUN useradd --create-home --uid 1000 varbot && mkdir -p /data && chown varbot /data
 WORKDIR /app
 

@@ -114,3 +114,20 @@ def test_the_dockerfile_builds_every_target_compose_asks_for_from_sources_that_e
         if line.startswith("COPY ") and "--from" not in line:
             for source in line.split()[1:-1]:
                 assert (REPO / source).exists(), f"Dockerfile copies {source}, which does not exist"
+
+
+def test_the_images_hold_every_package_and_the_pages_and_import_them_from_the_sources() -> None:
+    import tomllib
+
+    dockerfile = (REPO / "Dockerfile").read_text()
+    copied = {
+        line.split()[1]
+        for line in dockerfile.splitlines()
+        if line.startswith("COPY ") and "--from" not in line
+    }
+    packages = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]
+    wanted = {name.rstrip("*") for name in packages["include"]}
+    assert wanted | {"frontend"} <= copied, f"not copied into the image: {(wanted | {'frontend'}) - copied}"
+    assert "PYTHONPATH=/app" in dockerfile, (
+        "the pages are found beside the sources only when /app is imported"
+    )
