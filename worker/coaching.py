@@ -107,7 +107,8 @@ def _coach(
         publisher.close()
     report(
         "done", f"done: {trainer.voiced_steps} steps heard your voice; the coached robot is saved as "
-        f"version {version_id}, to be tested against the one in use (Admin page: test the newest version)",
+        f"version {version_id}; on the Admin page, “Test the version in use” tests it against the one in use "
+        "and keeps it only if it is better",
         step=trainer.global_step, voiced_steps=trainer.voiced_steps,
     )  # fmt: skip
     return {"state": "done", "steps": trainer.global_step, "version_id": version_id}

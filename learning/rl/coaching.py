@@ -33,6 +33,7 @@ from learning.rl.watch import RolloutStep, Watcher
 
 DEFAULT_STEPS_PER_S = 5.0  # slow enough to follow, fast enough that an episode takes seconds
 DEFAULT_STEPS_PER_UPDATE = 25  # one PPO update every 5 s at the default pace
+LATE_CLIP_GRACE_S = 1.0  # a paced session waits this long after a rollout for the clips said over its end
 
 
 class CoachingStopped(Exception):
@@ -168,7 +169,7 @@ class CoachingTrainer(PPOTrainer):
             if wait > 0:
                 time.sleep(wait)
             now = time.time()
-            self._next_step_at = max(self._next_step_at, now - self.step_period_s) + self.step_period_s
+            self._next_step_at = now + self.step_period_s  # never faster to catch up: a person follows it
             goal, intent = self._step_goal, int(self.goals.intents[self._step_goal])
             self.moments.append(StepMoment(now, now + self.step_period_s, self._step_heard, goal, intent))
             if watcher is not None:
@@ -188,6 +189,7 @@ class CoachingTrainer(PPOTrainer):
     def collect_rollout(self) -> tuple[Rollout, list[dict[str, float]]]:
         self.moments = []
         buf, finished = super().collect_rollout()
+        self._wait_for_late_clips()
         voice = self.voice_term(self.moments)
         self.voiced_steps += int((voice != 0).sum())
         buf.rewards[:, 0] += torch.from_numpy(voice / self._reward_scale()).float()
@@ -201,6 +203,17 @@ class CoachingTrainer(PPOTrainer):
             buf.rewards, buf.values, buf.dones, next_value, c.gamma, c.gae_lambda
         )
         return buf, finished
+
+    def _wait_for_late_clips(self) -> None:
+        """A clip is sent when its speaker lets go: one said over the rollout's last frames arrives a moment
+        after it. The robot stands still meanwhile (as it does while it learns)."""
+        if not self.step_period_s or not self.moments:
+            return
+        until = self.moments[-1].shown_to + LATE_CLIP_GRACE_S
+        while (left := until - time.time()) > 0:
+            if self.should_stop():
+                raise CoachingStopped("the coaching session was stopped")
+            time.sleep(min(left, 0.1))
 
     def voice_term(self, moments: Sequence[StepMoment]) -> np.ndarray:
         """(T,) f_S(S_t)·f_S(S_goal) minus the same with silence: the silence term is the same at every step
