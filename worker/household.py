@@ -83,9 +83,10 @@ def load_household(
             "needs one 'is' and one 'is not' answer, or 'is not' for every command)."
         )
     used_snapshots = sorted({t[0] for t in triplet_ids})
+    # Every answered snapshot, not only those giving triplets: an *is* answer on a view with no *is not* yet
+    # still tells which target a command names (for scoring simulated success).
     snapshots = {
-        s.id: s
-        for s in session.scalars(select(models.Snapshot).where(models.Snapshot.id.in_(used_snapshots)))
+        s.id: s for s in session.scalars(select(models.Snapshot).where(models.Snapshot.id.in_(list(answers))))
     }
     snapshot_row = {sid: row for row, sid in enumerate(used_snapshots)}
     clip_row = {clip.id: row for row, clip in enumerate(clips)}

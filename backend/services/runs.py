@@ -10,7 +10,7 @@ from sqlalchemy.orm import Session
 
 from backend import broker, models
 from backend.errors import Conflict, Invalid, NotFound, Unavailable
-from backend.schemas import RunCreate, RunParams, RunPublic
+from backend.schemas import PresetPublic, RunCreate, RunParams, RunPublic
 from backend.services.robots import get_robot
 from backend.services.triplets import triplet_stats
 
@@ -43,6 +43,14 @@ PRESETS: dict[str, dict[str, Any]] = {
         seed=0,
     ),
 }
+# What a fine-tune's parts cost on this machine (2 CPU cores, about 1,000 household triplets), from the
+# standard preset's run by bench/household.py (bench/results/household.json, stages_s): 29.2 s for 20 VAR
+# epochs, 194.29 s for 20,000 policy steps, 157.83 s for 100 test episodes of each model. The thorough
+# preset's run (bench/results/household_thorough.json) took 21.8 min where these predict 22.4 min.
+SECONDS_PER_VAR_EPOCH = 29.2 / 20
+SECONDS_PER_POLICY_STEP = 194.29 / 20_000
+SECONDS_PER_TEST_EPISODE = 157.83 / 100
+BUDGET_MEASURED_BY = "bench/results/household.json"
 NEEDS_TRIPLETS = (models.RunKind.FINETUNE, models.RunKind.VAR_FINETUNE)
 UNFINISHED = (models.RunStatus.QUEUED, models.RunStatus.RUNNING)
 
@@ -53,6 +61,26 @@ def resolve_params(preset: str, overrides: dict[str, Any]) -> RunParams:
     except ValidationError as exc:
         problems = "; ".join(f"{'.'.join(map(str, e['loc'])) or 'params'}: {e['msg']}" for e in exc.errors())
         raise Invalid(f"invalid run parameters: {problems}") from exc
+
+
+def minutes_here(params: RunParams) -> float:
+    """About how long a fine-tune with `params` takes on this machine with about 1,000 triplets: VAR
+    epochs, policy steps and test episodes at the costs measured above."""
+    seconds = (
+        params.var_epochs * SECONDS_PER_VAR_EPOCH
+        + params.policy_steps * SECONDS_PER_POLICY_STEP
+        + params.eval_episodes * SECONDS_PER_TEST_EPISODE
+    )
+    return round(seconds / 60, 1)
+
+
+def published_presets() -> dict[str, PresetPublic]:
+    return {
+        name: PresetPublic(
+            **params, minutes_here=minutes_here(RunParams(**params)), measured_by=BUDGET_MEASURED_BY
+        )
+        for name, params in PRESETS.items()
+    }
 
 
 def get_run(session: Session, household_id: int, run_id: int) -> models.Run:

@@ -78,6 +78,9 @@ def test_presets_are_published(member) -> None:
     presets = member.client.get("/api/v1/runs/presets").json()
     assert set(presets) == {"quick", "standard", "thorough"}
     assert presets["quick"]["policy_steps"] < presets["thorough"]["policy_steps"]
+    minutes = [presets[name]["minutes_here"] for name in ("quick", "standard", "thorough")]
+    assert 0 < minutes[0] < minutes[1] < minutes[2], "each preset states its budget in minutes"
+    assert presets["standard"]["measured_by"] == "bench/results/household.json"
 
 
 def test_fine_tuning_is_refused_without_enough_triplets(admin, robot) -> None:

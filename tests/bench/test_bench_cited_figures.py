@@ -22,3 +22,17 @@ def test_the_throughput_result_holds_the_reference_beside_the_ratio():
     ratio = result["trainer_steps_per_s"] / result["reference"]["value"]
     assert result["speedup_over_reference"] == pytest.approx(ratio)
     assert set(result["load_average"]) == {"before", "after"}
+
+
+def test_the_presets_budgets_come_from_the_household_runs_they_cite():
+    from backend.schemas import RunParams
+    from backend.services import runs
+
+    standard = json.loads((REPO_ROOT / runs.BUDGET_MEASURED_BY).read_text())
+    assert standard["run"]["preset"] == "standard" and standard["run"]["params"] == runs.PRESETS["standard"]
+    stages = standard["run"]["stages_s"]
+    assert runs.minutes_here(RunParams(**runs.PRESETS["standard"])) == round(sum(stages.values()) / 60, 1)
+    thorough = json.loads((REPO_ROOT / "bench" / "results" / "household_thorough.json").read_text())
+    measured = sum(thorough["run"]["stages_s"].values()) / 60
+    predicted = runs.minutes_here(RunParams(**thorough["run"]["params"]))
+    assert abs(predicted - measured) / measured < 0.05, "the costs predict the thorough run within 5 %"

@@ -182,6 +182,51 @@ def upload_clip(client: httpx.Client, wav: bytes, name: str) -> int:
     return int(response.json()["id"])
 
 
+def robot_with_commands(stack: Stack, name: str, words: list[str], folder: Path, seconds: float = 1.0) -> int:
+    """A simulated Kuka named `name`, and a tone recording of each of `words` the household lacks."""
+    with stack.client() as alice:
+        robot = alice.post("/robots", json={"name": name, "kind": "kuka-sim"}).json()["id"]
+        existing = {clip["name"] for clip in alice.get("/clips", params={"limit": 500}).json()}
+        for word in words:
+            if word not in existing:
+                upload_clip(alice, tone_wav(folder / f"{word}.wav", seconds=seconds).read_bytes(), word)
+    return int(robot)
+
+
+STORE_ATTEMPTS = """
+import sys
+from backend import models
+from backend.db import get_session_factory
+from backend.deps import get_blob_store
+from backend.services.snapshots import create_snapshot
+from sim.explore import random_views
+from worker.capture import png
+
+robot_id, commands = int(sys.argv[1]), sys.argv[2:]
+store = get_blob_store()
+views = list(random_views("kuka", 4 * len(commands), seed=5, image_size=64))
+with get_session_factory()() as session:
+    robot = session.get_one(models.Robot, robot_id)
+    clips = {c.name: c.id for c in session.query(models.Clip).filter(models.Clip.deleted_at.is_(None))}
+    for i, word in enumerate(commands):
+        frames = [store.put(png(image)) for image, _, _ in views[4 * i : 4 * i + 4]]
+        attempt = {"command": f"name:{word}", "clip_id": clips[word], "frames": frames}
+        image, heard, state = views[4 * i + 3]
+        meta = {"attempt": attempt, "sim_heard": heard}
+        create_snapshot(session, store, robot, png(image), [float(v) for v in state], "attempt", meta)
+"""
+
+
+def store_attempts(stack: Stack, robot: int, commands: list[str]) -> None:
+    """One attempt per command, stored as the robot worker stores them (`worker.attempts`), from real views
+    of the simulated Kuka: four frames, the last the final view."""
+    done = subprocess.run(
+        [sys.executable, "-c", STORE_ATTEMPTS, str(robot), *commands],
+        env=stack.env, cwd=REPO, capture_output=True, text=True,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stderr[-3000:]
+
+
 # --- the browser --------------------------------------------------------------------------------------------
 
 

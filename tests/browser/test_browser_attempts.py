@@ -3,61 +3,18 @@
 on a phone the view and the answers are on screen together. The attempts are stored as the robot worker
 stores them (`worker.attempts`, tested in tests/worker), from real views of the simulated Kuka."""
 
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
-from browser_helpers import Stack, open_page, screenshot, sign_in, tone_wav, upload_clip
+from browser_helpers import Stack, open_page, robot_with_commands, screenshot, sign_in, store_attempts
 
 from varbot.services import wait_until
 
 pytestmark = pytest.mark.browser
-REPO = Path(__file__).resolve().parents[2]
 WORDS = ["zero", "one", "two"]
-
-_STORE_ATTEMPTS = """
-import sys
-from backend import models
-from backend.db import get_session_factory
-from backend.deps import get_blob_store
-from backend.services.snapshots import create_snapshot
-from sim.explore import random_views
-from worker.capture import png
-
-robot_id, commands = int(sys.argv[1]), sys.argv[2:]
-store = get_blob_store()
-views = list(random_views("kuka", 4 * len(commands), seed=5, image_size=64))
-with get_session_factory()() as session:
-    robot = session.get_one(models.Robot, robot_id)
-    clips = {c.name: c.id for c in session.query(models.Clip).filter(models.Clip.deleted_at.is_(None))}
-    for i, word in enumerate(commands):
-        frames = [store.put(png(image)) for image, _, _ in views[4 * i : 4 * i + 4]]
-        attempt = {"command": f"name:{word}", "clip_id": clips[word], "frames": frames}
-        image, heard, state = views[4 * i + 3]
-        meta = {"attempt": attempt, "sim_heard": heard}
-        create_snapshot(session, store, robot, png(image), [float(v) for v in state], "attempt", meta)
-"""
-
-
-def _store_attempts(stack: Stack, robot: int, commands: list[str]) -> None:
-    done = subprocess.run(
-        [sys.executable, "-c", _STORE_ATTEMPTS, str(robot), *commands],
-        env=stack.env, cwd=REPO, capture_output=True, text=True,
-    )  # fmt: skip
-    assert done.returncode == 0, done.stderr[-3000:]
 
 
 @pytest.fixture(scope="module")
 def attempt_robot(stack: Stack, tmp_path_factory: pytest.TempPathFactory) -> int:
-    folder = tmp_path_factory.mktemp("attempt-clips")
-    with stack.client() as alice:
-        robot = alice.post("/robots", json={"name": "attempt arm", "kind": "kuka-sim"}).json()["id"]
-        existing = {clip["name"] for clip in alice.get("/clips", params={"limit": 500}).json()}
-        for word in WORDS:
-            if word not in existing:
-                upload_clip(alice, tone_wav(folder / f"{word}.wav").read_bytes(), word)
-    return int(robot)
+    return robot_with_commands(stack, "attempt arm", WORDS, tmp_path_factory.mktemp("attempt-clips"))
 
 
 def _recordings(stack: Stack, name: str) -> int:
@@ -75,7 +32,7 @@ def _next_attempt_after(page, shown: str) -> None:  # type: ignore[no-untyped-de
 def test_judging_attempts_by_keyboard_stores_full_labels_and_undo_takes_them_back(
     page, stack: Stack, attempt_robot: int
 ) -> None:  # type: ignore[no-untyped-def]
-    _store_attempts(stack, attempt_robot, ["zero", "one", "two"])
+    store_attempts(stack, attempt_robot, ["zero", "one", "two"])
     clips = stack.count("clips", "deleted_at IS NULL")
     page.evaluate(f"localStorage.setItem('varbot.robot', '{attempt_robot}')")
     open_page(page, f"{stack.url}/label")
@@ -138,7 +95,7 @@ def test_judging_attempts_by_keyboard_stores_full_labels_and_undo_takes_them_bac
 def test_on_a_phone_the_attempt_and_its_answers_are_on_screen_together(
     browser, stack: Stack, attempt_robot: int
 ) -> None:  # type: ignore[no-untyped-def]
-    _store_attempts(stack, attempt_robot, ["one"])
+    store_attempts(stack, attempt_robot, ["one"])
     context = browser.new_context(viewport={"width": 390, "height": 844}, is_mobile=True, has_touch=True)
     page = context.new_page()
     sign_in(page, stack.url)

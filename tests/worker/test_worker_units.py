@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from backend import models
+from varbot.services import wait_until
 from worker.evaluation import MIN_ITEMS, ModelScore, Verdict, compare, decide
 from worker.household import SILENCE_ROW, HouseholdData, TooFewTriplets, derive_triplets
 
@@ -45,6 +46,39 @@ def test_the_triplet_count_agrees_with_the_api_and_too_few_are_refused_with_how_
         assert not held_snapshots, "held-out triplets come from images never trained on"
         with pytest.raises(TooFewTriplets, match="5 more are needed"):
             load_household(session, get_blob_store(), robot, 16, "speech", 0.25, 0, min_triplets=expected + 5)
+
+
+def test_a_command_is_known_from_an_is_answer_on_a_view_that_gives_no_triplet_yet(
+    household,
+    stack,  # type: ignore[no-untyped-def]
+) -> None:
+    """Simulated success is measured once every command has an *is* answer, even one on a view with no *is
+    not* answer yet (such a view gives no triplet)."""
+    from backend.db import get_session_factory
+    from backend.deps import get_blob_store
+    from varbot.simulated_household import VOICES, WORDS
+    from worker.household import load_household
+
+    robot = household.client.post("/api/v1/robots", json={"name": "is-only", "kind": "kuka-sim"}).json()
+    robot_id = robot["id"]
+    household.client.post(f"/api/v1/robots/{robot_id}/snapshots:capture", json={"count": 40})
+    wait_until(lambda: len(household.snapshots(robot_id)) >= 40, 120, "captured snapshots")
+    by_target = {
+        s["meta"]["sim_heard"]: s for s in household.snapshots(robot_id) if s["meta"]["sim_heard"] is not None
+    }
+    first, second = sorted(by_target)[:2]
+    answers = [(by_target[first], (WORDS[first], VOICES[0]), "is"),
+               *((by_target[first], (WORDS[second], voice), "is_not") for voice in VOICES),
+               (by_target[second], (WORDS[second], VOICES[0]), "is")]  # fmt: skip
+    for snapshot, recording, verdict in answers:
+        body = {"snapshot_id": snapshot["id"], "clip_id": household.clip_ids[recording], "verdict": verdict}
+        assert household.client.post("/api/v1/labels", json=body).status_code == 201
+    with get_session_factory()() as session:
+        robot = session.get_one(models.Robot, robot_id)
+        data = load_household(session, get_blob_store(), robot, 16, "speech", 0.0, 0, min_triplets=1)
+    intent_of = dict(zip(data.clip_ids.tolist(), data.clip_intent.tolist(), strict=True))
+    assert intent_of[household.clip_ids[(WORDS[second], VOICES[1])]] == second, "known from the lone 'is'"
+    assert intent_of[household.clip_ids[(WORDS[first], VOICES[1])]] == first
 
 
 def _toy_data(features: np.ndarray) -> HouseholdData:
@@ -130,7 +164,10 @@ def test_the_gate_says_what_changed_in_the_households_own_command_words() -> Non
     assert decision.verdict == Verdict.BETTER
     assert "*two* now works in 16 of 20 tries, was 6 of 20" in decision.summary
     assert "*zero*" not in decision.summary, "an unchanged command is not mentioned"
-    assert decision.summary.endswith("the new version is active.")
+    assert "the new version is active. Measured on 50 held-out answers and 80 tries." in decision.summary
+    worse = decide(_score(0.95, 0.20), _score(0.80, 0.50)).summary
+    assert worse.endswith("kept the old version. Measured on 50 held-out answers and 40 tries."), worse
+    assert decide(_score(0.80, None), _score(0.80, None)).summary.endswith("Measured on 50 held-out answers.")
 
 
 def test_replay_joins_views_of_the_training_room_paired_by_what_is_in_view_and_never_held_out() -> None:

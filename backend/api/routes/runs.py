@@ -24,10 +24,10 @@ _HEARTBEAT_S = 15.0
 _POLL_WHILE_SUBSCRIBED_S = 5.0
 
 
-@router.get("/presets", response_model=dict[str, schemas.RunParams])
-def presets() -> dict[str, Any]:
-    """The parameter sets behind "quick", "standard" and "thorough"."""
-    return runs.PRESETS
+@router.get("/presets", response_model=dict[str, schemas.PresetPublic])
+def presets() -> dict[str, schemas.PresetPublic]:
+    """The parameter sets behind "quick", "standard" and "thorough", each with its budget in minutes."""
+    return runs.published_presets()
 
 
 @router.post(

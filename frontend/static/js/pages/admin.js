@@ -5,13 +5,18 @@ import { element, pageFailed, pageReady, robotPicker, say, startPage, when } fro
 const $ = (id) => document.getElementById(id);
 let picker;
 
+function formatMinutes(minutes) {
+  const whole = Math.max(1, Math.round(minutes));
+  return whole === 1 ? "1 minute" : `${whole} minutes`;
+}
+
 async function drawPresets() {
   const presets = await api("/runs/presets");
   const box = $("presets");
   box.innerHTML = "";
   for (const [name, params] of Object.entries(presets)) {
     const id = `preset-${name}`;
-    const hint = `${params.var_epochs} VAR epochs, ${params.policy_steps.toLocaleString()} policy steps, ${params.eval_episodes} test episodes`;
+    const hint = `about ${formatMinutes(params.minutes_here)} on a 2-core computer: ${params.var_epochs} VAR epochs, ${params.policy_steps.toLocaleString()} policy steps, ${params.eval_episodes} test episodes`;
     box.append(element("div", { class: "row choice" },
       element("input", { type: "radio", name: "preset", id, value: name, checked: name === "quick", style: "width:auto;min-height:0" }),
       element("label", { for: id, style: "margin:0" }, `${name} `, element("span", { class: "muted", text: `(${hint})` }))));

@@ -1,0 +1,103 @@
+"""bench/household.py on a tiny world (16 px VAR, a one-update policy) through the real API, Redis and Celery
+workers: a household's own WAV folder becomes its members and recordings, the robot sits in the room asked
+for, each labelling mode collects and answers its views, a fine-tune runs, and every figure lands in the
+JSON. And a badly named clip folder says what is wrong."""
+
+import json
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+
+import household as bench
+import pytest
+from result_files import relative_paths
+
+from varbot.simulated_household import TINY, WORDS, install_tiny_base_model, spoken_commands
+
+TINY_PARAMS = [f"--run-param={key}={json.dumps(value)}" for key, value in TINY.items()]
+
+
+@pytest.fixture(scope="module")
+def folders() -> Iterator[tuple[Path, Path]]:
+    """(a household's clip folder: two members, every command once each; the tiny base models)."""
+    root = Path(tempfile.mkdtemp(prefix="vb-household-test-"))
+    wavs = spoken_commands(root / "spoken")
+    clips = root / "clips"
+    clips.mkdir()
+    for (word, voice), wav in wavs.items():
+        (clips / f"{voice}_{WORDS.index(word)}.wav").write_bytes(wav)
+    install_tiny_base_model(wavs, root / "build", root / "base_models")
+    yield clips, root / "base_models"
+
+
+@pytest.fixture(scope="module")
+def stack(folders: tuple[Path, Path]) -> Iterator[bench.Stack]:
+    started = bench.Stack(Path(tempfile.mkdtemp(prefix="vb-household-stack-")), folders[1])
+    yield started
+    started.stop()
+
+
+def _run(stack: bench.Stack, clips: Path, out: Path, *options: str) -> dict:
+    argv = ["--clips", str(clips), "--triplets", "60", "--preset", "quick", *TINY_PARAMS, "--out", str(out)]
+    result = bench.main([*argv, *options], stack=stack)
+    assert json.loads(out.read_text()) == relative_paths(json.loads(json.dumps(result))), "what it printed"
+    assert result["run"]["status"] == "succeeded", result["run"]["error"]
+    assert result["run"]["gate"]["verdict"] in {"better", "no_change", "worse"}
+    assert result["load_average"]["before"] and result["machine"]["cpu_cores"]
+    return result
+
+
+def test_a_households_own_clips_in_a_held_out_room_with_mixed_labelling(
+    stack: bench.Stack, folders: tuple[Path, Path], tmp_path: Path
+) -> None:
+    options = ["--room", "lamplit_room", "--labelling", "mixed", "--attempts", "8"]
+    result = _run(stack, folders[0], tmp_path / "mixed.json", *options, "--attempts-per-request", "4")
+    household = result["household"]
+    assert sorted(household["speakers"]) == ["en", "en-us"], "members from the file names"
+    assert household["members"] == 2
+    assert household["recordings"] == 8 and household["room"] == "lamplit_room"
+    labelled = result["labelling"]
+    assert (
+        labelled["attempt_answers"] >= 1
+        and sum(labelled["attempt_outcomes"].values()) == labelled["attempt_answers"]
+    )
+    assert labelled["labels"] == labelled["labels_is"] + labelled["labels_is_not"]
+    assert labelled["answers"] == labelled["pair_answers"] + labelled["attempt_answers"]
+    assert 0 <= labelled["is_share"] <= 1 and labelled["triplets"] >= 60
+    assert [row["command"] for row in result["per_command"]] == WORDS
+
+
+def test_attempts_alone_and_views_alone_in_the_other_rooms(
+    stack: bench.Stack, folders: tuple[Path, Path], tmp_path: Path
+) -> None:
+    attempts = _run(stack, folders[0], tmp_path / "attempts.json", "--labelling", "attempts",
+                    "--room", "unseen_room", "--attempts", "8", "--household", "attempting")  # fmt: skip
+    assert attempts["labelling"]["pair_answers"] == 0 and attempts["labelling"]["attempt_answers"] >= 1
+    assert attempts["household"]["room"] == "unseen_room"
+    views = _run(stack, folders[0], tmp_path / "views.json", "--labelling", "views", "--views", "20",
+                 "--room", "training", "--household", "viewing")  # fmt: skip
+    assert views["labelling"]["attempt_answers"] == 0 and views["labelling"]["pair_answers"] >= 1
+    assert views["labelling"]["views_collected"] == 20 and views["household"]["room"] == "training"
+
+
+@pytest.mark.parametrize(
+    ("names", "said"),
+    [
+        ([], "no .wav files in it"),
+        (["anna.wav"], "anna.wav is not named <member>_<intent index>.wav"),
+        (["anna_0.wav", "anna_7.wav"], "names intent 7, but the world has intents 0 to 3"),
+        (["anna_0.wav", "bob_1_2.wav"], "no recording of intent 2, 3"),
+    ],
+)
+def test_a_badly_named_clip_folder_says_what_is_wrong(tmp_path: Path, names: list[str], said: str) -> None:
+    for name in names:
+        (tmp_path / name).write_bytes(b"RIFF")
+    with pytest.raises(SystemExit, match=said):
+        bench.recordings_from_folder(tmp_path, 4)
+
+
+def test_a_good_clip_folder_gives_members_and_takes(tmp_path: Path) -> None:
+    for name in ("anna_0.wav", "anna_1_2.wav", "big_bob_2.wav", "big_bob_3.WAV", "notes.txt"):
+        (tmp_path / name).write_bytes(b"RIFF")
+    found = bench.recordings_from_folder(tmp_path, 4)
+    assert [(r.member, r.intent) for r in found] == [("anna", 0), ("anna", 1), ("big_bob", 2), ("big_bob", 3)]
