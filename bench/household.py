@@ -180,7 +180,8 @@ class Stack:
         }
         port = services.free_port()
         self.url = services.api_url("127.0.0.1", port)
-        self.services = services.Stack(root / "logs", self.env)
+        self.logs = root / "logs"
+        self.services = services.Stack(self.logs, self.env)
         try:
             self.services.start(services.redis_service(sock, persist=False))
             self.services.migrate(quiet=True)
@@ -410,20 +411,31 @@ def label(
 # --- the run ----------------------------------------------------------------------------------------------
 
 
-def run_and_wait(admin: httpx.Client, robot_id: int, kind: str, preset: str, params: dict) -> dict:
-    body = {"robot_id": robot_id, "kind": kind, "preset": preset, "params": params}
+def run_and_wait(
+    admin: httpx.Client, robot_id: int, preset: str, params: dict, timeout_s: float, logs: Path
+) -> dict:
+    """Starts the fine-tune and follows it to its end; a run still unfinished after `timeout_s` (a worker that
+    died taking it, say) ends the bench saying where the workers' logs are."""
+    body = {"robot_id": robot_id, "kind": "finetune", "preset": preset, "params": params}
     response = admin.post("/api/v1/runs", json=body)
     if response.status_code != 201:
         raise BenchError(f"the fine-tune was refused: {response.text}")
     run_id = response.json()["id"]
+    deadline = time.monotonic() + timeout_s
     with Progress(console=console) as bar:
-        task = bar.add_task(kind, total=1.0)
+        task = bar.add_task("finetune", total=1.0)
         while True:
             run = admin.get(f"/api/v1/runs/{run_id}").json()
-            bar.update(task, completed=run["progress"], description=f"{kind}: {run['stage']}")
+            bar.update(task, completed=run["progress"], description=f"finetune: {run['stage']}")
             if run["status"] in ("succeeded", "failed", "cancelled"):
                 return run
+            if time.monotonic() >= deadline:
+                break
             time.sleep(2)
+    raise BenchError(
+        f"run {run_id} was still {run['status']} ({run['stage']}) after {timeout_s:.0f} s: see the training "
+        f"worker's log in {logs}, or give it longer (--run-timeout-s)"
+    )
 
 
 def per_command(names: list[str], before: dict, after: dict) -> list[dict]:
@@ -493,7 +505,7 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
     labelling_started = time.perf_counter()
     labelled = label(members, robot_id, intent_of_clip, names, plan)
     labelling_s = time.perf_counter() - labelling_started
-    run = run_and_wait(members[0], robot_id, "finetune", args.preset, run_params(args))
+    run = run_and_wait(members[0], robot_id, args.preset, run_params(args), args.run_timeout_s, stack.logs)
     evaluation = run["metrics"].get("evaluation") or {}
     before, after = evaluation.get("active") or {}, evaluation.get("candidate") or {}
     return {
@@ -538,6 +550,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--run-param", action="append", default=[], help="KEY=VALUE run parameter (repeat)")
     parser.add_argument(
         "--base-models", type=Path, default=None, help="VARBOT_BASE_MODELS_DIR for the workers"
+    )
+    parser.add_argument(
+        "--run-timeout-s", type=float, default=8 * 3600, help="the longest the fine-tune may take"
     )
     parser.add_argument("--household", default="bench", help="the household's name (and its usernames')")
     parser.add_argument("--seed", type=int, default=0)

@@ -80,6 +80,17 @@ def test_attempts_alone_and_views_alone_in_the_other_rooms(
     assert views["labelling"]["views_collected"] == 20 and views["household"]["room"] == "training"
 
 
+def test_a_run_that_does_not_end_in_time_says_where_to_look(
+    stack: bench.Stack, folders: tuple[Path, Path], tmp_path: Path
+) -> None:
+    options = ["--labelling", "views", "--views", "20", "--household", "waiting", "--run-timeout-s", "0"]
+    with pytest.raises(
+        SystemExit, match=r"run \d+ was still (queued|running) .* after 0 s: see the training"
+    ):
+        _run(stack, folders[0], tmp_path / "late.json", *options)
+    assert not (tmp_path / "late.json").exists(), "no result is written for a run that did not end"
+
+
 @pytest.mark.parametrize(
     ("names", "said"),
     [
