@@ -40,3 +40,11 @@ def worker_drives(kind: str, settings: Mapping[str, Any]) -> bool:
     robot, and a real Kinova arm whose settings say where it is (`arm_ip`, see worker/real_arm.py)."""
     robot_kind = RobotKind(kind)
     return robot_kind.simulated or (robot_kind is RobotKind.KINOVA_REAL and bool(settings.get("arm_ip")))
+
+
+def runs_on_robot_worker(kind: str) -> bool:
+    """Whether this robot's training runs are taken by the robot worker rather than a training worker: a real
+    arm's policy stage drives the arm itself (worker/real_arm.py), so its runs must run where the arm, its
+    camera and Kinova's wheel are (the robot worker next to it); a simulated robot's runs go to any training
+    worker."""
+    return RobotKind(kind) is RobotKind.KINOVA_REAL

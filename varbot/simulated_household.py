@@ -91,9 +91,10 @@ class Household:
             clip_ids[(word, voice)] = response.json()["id"]
         return cls(client, household_id, clip_ids)
 
-    def new_robot(self, name: str, views: int = 60) -> int:
-        """A simulated Kuka with `views` captured snapshots, every one answered as a person would."""
-        response = self.client.post("/api/v1/robots", json={"name": name, "kind": "kuka-sim"})
+    def new_robot(self, name: str, views: int = 60, kind: str = "kuka-sim") -> int:
+        """A simulated robot (a Kuka unless `kind` says) with `views` captured snapshots, every one answered
+        as a person would."""
+        response = self.client.post("/api/v1/robots", json={"name": name, "kind": kind})
         assert response.status_code == 201, response.text
         robot_id = response.json()["id"]
         response = self.client.post(f"/api/v1/robots/{robot_id}/snapshots:capture", json={"count": views})
@@ -116,7 +117,7 @@ class Household:
     def answer(self, snapshot: dict) -> None:
         """Ground truth plays the person: 'is' for the word in view, 'is not' for another word; with nothing
         in view, 'is not' for every word ("nothing I said")."""
-        heard = snapshot["meta"]["sim_heard"]
+        heard = snapshot["meta"].get("sim_heard")  # a real camera's view has no ground truth: nothing heard
         voice = VOICES[snapshot["id"] % 2]
         if heard is None:
             pairs = [(self.clip_ids[(word, voice)], "is_not") for word in WORDS]

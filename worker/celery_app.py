@@ -38,7 +38,7 @@ VISIBILITY_TIMEOUT_S = TRAINING_HARD_LIMIT_S + 3600
 JANITOR_INTERVAL_S = _seconds("VARBOT_RUN_JANITOR_INTERVAL_S", 10)
 READY_FILE_ENV = "VARBOT_WORKER_READY_FILE"
 
-TASK_ROUTES = {
+TASK_ROUTES = {  # defaults: a run sent with its robot's queue (backend.services.runs.run_queue) keeps it
     broker.TASK_CAPTURE_SNAPSHOTS: {"queue": broker.QUEUE_ROBOT},
     **{name: {"queue": broker.QUEUE_TRAINING} for name in broker.RUN_TASKS.values()},
 }
@@ -67,7 +67,8 @@ def make_app() -> Celery:
 
 
 class RunJanitor(bootsteps.StartStopStep):
-    """On training workers: every few seconds, send again any RUNNING run whose worker died (no lease).
+    """On training and robot workers (a real arm's runs run on the robot worker): every few seconds, send
+    again any RUNNING run whose worker died (no lease).
 
     Runs on the worker's own timer in the main process (no extra thread), so a killed worker's run is
     picked up by the next training worker within seconds instead of after the visibility timeout.
@@ -81,7 +82,7 @@ class RunJanitor(bootsteps.StartStopStep):
 
     def start(self, worker) -> None:  # type: ignore[no-untyped-def]
         queues = set(worker.app.amqp.queues.consume_from or {}) or {broker.QUEUE_TRAINING}
-        if broker.QUEUE_TRAINING not in queues:
+        if not queues & {broker.QUEUE_TRAINING, broker.QUEUE_ROBOT}:
             return
         from worker.lease import requeue_orphaned_runs
 

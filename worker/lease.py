@@ -17,6 +17,7 @@ from sqlalchemy import select
 
 from backend import broker, models
 from backend.db import get_session_factory
+from backend.services.runs import run_queue
 
 logger = logging.getLogger(__name__)
 
@@ -82,14 +83,17 @@ class RunLease:
 
 
 def requeue_orphaned_runs() -> list[int]:
-    """Send again every RUNNING run that no live worker holds (its worker was killed). Returns their ids."""
+    """Send again every RUNNING run that no live worker holds (its worker was killed), to the queue its robot
+    runs on (a real arm: the robot queue). Returns their ids."""
     client = broker.redis_client()
     sent = []
     with get_session_factory()() as session:
         rows = session.execute(
-            select(models.Run.id, models.Run.kind).where(models.Run.status == models.RunStatus.RUNNING)
+            select(models.Run.id, models.Run.kind, models.Robot.kind)
+            .join(models.Robot, models.Robot.id == models.Run.robot_id)
+            .where(models.Run.status == models.RunStatus.RUNNING)
         ).all()
-    for run_id, kind in rows:
+    for run_id, kind, robot_kind in rows:
         if client.exists(lease_key(run_id)):
             continue
         # One re-send per lease period across all training workers.
@@ -97,7 +101,7 @@ def requeue_orphaned_runs() -> list[int]:
             continue
         task = broker.RUN_TASKS[models.RunKind(kind)]
         broker.send_task(
-            task, {"run_id": run_id}, broker.QUEUE_TRAINING, f"resume-{run_id}-{uuid.uuid4().hex}"
+            task, {"run_id": run_id}, run_queue(robot_kind), f"resume-{run_id}-{uuid.uuid4().hex}"
         )
         logger.warning("run %s was RUNNING without a live worker: sent again to resume it", run_id)
         sent.append(run_id)

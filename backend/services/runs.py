@@ -13,6 +13,7 @@ from backend.errors import Conflict, Invalid, NotFound, Unavailable
 from backend.schemas import PresetPublic, RunCreate, RunParams, RunPublic
 from backend.services.robots import get_robot
 from backend.services.triplets import triplet_stats
+from core.robots import runs_on_robot_worker
 
 PRESETS: dict[str, dict[str, Any]] = {
     "quick": dict(
@@ -107,6 +108,11 @@ def publish_run(run: models.Run) -> None:
     broker.publish(broker.run_channel(run.household_id), payload)
 
 
+def run_queue(robot_kind: str) -> str:
+    """The queue a run of a `robot_kind` robot goes to (core.robots.runs_on_robot_worker)."""
+    return broker.QUEUE_ROBOT if runs_on_robot_worker(robot_kind) else broker.QUEUE_TRAINING
+
+
 def create_run(session: Session, requester: models.User, body: RunCreate, min_triplets: int) -> models.Run:
     robot = get_robot(session, requester.household_id, body.robot_id)
     params = resolve_params(body.preset, body.params)
@@ -141,7 +147,7 @@ def create_run(session: Session, requester: models.User, body: RunCreate, min_tr
     session.commit()
     try:
         broker.send_task(
-            broker.RUN_TASKS[models.RunKind(run.kind)], {"run_id": run.id}, broker.QUEUE_TRAINING, run.task_id
+            broker.RUN_TASKS[models.RunKind(run.kind)], {"run_id": run.id}, run_queue(robot.kind), run.task_id
         )
     except broker.BrokerUnavailable as exc:
         _finish(run, models.RunStatus.FAILED, error=f"could not be queued: {exc}")

@@ -231,3 +231,17 @@ def test_the_robot_worker_without_kortex_api_fails_an_arms_attempts_saying_how_t
     assert status["state"] == "failed" and "KortexUnavailableError" in status["message"]
     assert "kortex_api" in status["message"] and "pip install" in status["message"]
     assert household.snapshots(robot) == []
+
+
+def test_a_run_on_the_arm_is_taken_by_the_robot_worker_next_to_it(
+    stack: Stack, household: Household, standin: StandInArm
+) -> None:
+    """Through the API and Redis with no training worker running: the arm's run goes to the robot queue, and
+    the stack's robot worker (no stand-in, no kortex_api) takes it and fails it at the arm's driver, saying
+    how to install Kinova's wheel; the active model stays. (The views are labelled from the stand-in.)"""
+    robot, version = _labelled_arm(household, standin, "queued-arm")
+    run = household.start_run(robot, kind="policy_improve", **{**TINY, "policy_steps": STEPS_PER_UPDATE})
+    final = household.wait_run(run["id"], timeout=300)
+    assert (final["status"], final["stage"]) == ("failed", "policy_improve"), final
+    assert "KortexUnavailableError" in final["error"] and "kortex_api" in final["error"], final["error"]
+    assert [v["id"] for v in household.versions(robot) if v["status"] == "active"] == [version]
