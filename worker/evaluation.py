@@ -145,18 +145,18 @@ def decide(
             "This is the robot's first version; it is now active.",
         )  # fmt: skip
     names = command_names or {}
-    reasons, verdicts = [], []
+    reasons: list[str] = []
+    verdicts: dict[str, Verdict] = {}  # by measure
     for name, cand, act, count, why_not in (
-        ("held-out triplet accuracy", candidate.triplet_accuracy, active.triplet_accuracy,
-         candidate.held_out_triplets, None),
-        ("simulated success with the household's commands", candidate.sim_success, active.sim_success,
-         candidate.sim_episodes, candidate.sim_note or active.sim_note),
+        (ACCURACY, candidate.triplet_accuracy, active.triplet_accuracy, candidate.held_out_triplets, None),
+        (SUCCESS, candidate.sim_success, active.sim_success, candidate.sim_episodes,
+         candidate.sim_note or active.sim_note),
     ):  # fmt: skip
         if cand is None or act is None or count == 0:
             reasons.append(f"{name}: not measured" + (f" ({why_not})" if why_not else ""))
             continue
         verdict = compare(cand, act, count)
-        verdicts.append(verdict)
+        verdicts[name] = verdict
         shortfall = f"; a gain needs at least {MIN_ITEMS}, this had {count}" if count < MIN_ITEMS else ""
         reasons.append(
             f"{name}: candidate {cand:.3f} vs active {act:.3f} on {count} ({_WORDS[verdict]}{shortfall})"
@@ -166,16 +166,18 @@ def decide(
         summary = "Nothing could be measured, so nothing changed: kept the old version."
         return GateDecision(False, [*reasons, "nothing could be measured: the candidate stays a candidate"],
                             Verdict.NO_CHANGE, summary)  # fmt: skip
+    found = set(verdicts.values())
     overall = (
-        Verdict.WORSE if Verdict.WORSE in verdicts
-        else Verdict.BETTER if Verdict.BETTER in verdicts
+        Verdict.WORSE if Verdict.WORSE in found
+        else Verdict.BETTER if Verdict.BETTER in found
         else Verdict.NO_CHANGE
     )  # fmt: skip
-    return GateDecision(
-        overall == Verdict.BETTER, reasons, overall, _summary(overall, candidate, active, details)
-    )
+    said = _what_changed(overall, verdicts, candidate, active, details)
+    return GateDecision(overall == Verdict.BETTER, reasons, overall, _summary(overall, candidate, said))
 
 
+ACCURACY = "held-out triplet accuracy"
+SUCCESS = "simulated success with the household's commands"
 _WORDS = {
     Verdict.BETTER: "better",
     Verdict.NO_CHANGE: "no measurable change",
@@ -199,20 +201,40 @@ def _per_command(candidate: ModelScore, active: ModelScore, names: dict[int, str
     return lines
 
 
-def _summary(verdict: Verdict, candidate: ModelScore, active: ModelScore, details: list[str]) -> str:
-    said = "; ".join(details)
+def _what_changed(
+    verdict: Verdict,
+    verdicts: dict[str, Verdict],
+    candidate: ModelScore,
+    active: ModelScore,
+    details: list[str],
+) -> str:
+    """What moved, said only of the measures that gave `verdict`: a command's tries that changed within the
+    noise are not the reason for a verdict another measure gave."""
+    said = []
+    if verdicts.get(ACCURACY) == verdict:
+        said.append(_accuracy_change(candidate, active))
+    if verdicts.get(SUCCESS) == verdict:
+        said.append("; ".join(details) or _success_change(candidate, active))
+    return "; ".join(said)
+
+
+def _summary(verdict: Verdict, candidate: ModelScore, said: str) -> str:
     measured = _measured_on(candidate)
     if verdict == Verdict.BETTER:
-        return (
-            f"Better: {said or _accuracy_change(candidate, active)}; the new version is active. {measured}."
-        )
+        return f"Better: {said}; the new version is active. {measured}."
     if verdict == Verdict.WORSE:
-        return f"Worse: {said or _accuracy_change(candidate, active)}; kept the old version. {measured}."
+        return f"Worse: {said}; kept the old version. {measured}."
     count = candidate.held_out_triplets
     if max(count, candidate.sim_episodes) < MIN_ITEMS:
         evidence = f"a claim needs at least {MIN_ITEMS} held-out answers or tries; this run had {count}"
         return f"No measurable change ({evidence}); kept the old version."
     return f"No measurable change; kept the old version. {measured}."
+
+
+def _success_change(candidate: ModelScore, active: ModelScore) -> str:
+    tries = candidate.sim_episodes
+    now, before = round((candidate.sim_success or 0) * tries), round((active.sim_success or 0) * tries)
+    return f"it now succeeds in {now} of {tries} tries, was {before} of {tries}"
 
 
 def _measured_on(candidate: ModelScore) -> str:

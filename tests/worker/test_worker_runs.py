@@ -120,7 +120,7 @@ def test_a_worse_candidate_is_not_promoted_and_the_reasons_are_recorded(
     assert gate["promoted"] is False, gate
     assert gate["verdict"] in ("worse", "no_change"), "a lower score is never called better"
     assert any("triplet accuracy" in reason for reason in gate["reasons"])
-    assert gate["summary"].endswith("kept the old version.")
+    assert "kept the old version" in gate["summary"]
     versions = {v["id"]: v for v in household.versions(robot)}
     assert versions[worse]["status"] == "candidate" and "kept as candidate" in versions[worse]["notes"]
     assert versions[better]["status"] == "active"

@@ -170,6 +170,24 @@ def test_the_gate_says_what_changed_in_the_households_own_command_words() -> Non
     assert decide(_score(0.80, None), _score(0.80, None)).summary.endswith("Measured on 50 held-out answers.")
 
 
+def test_a_verdict_is_explained_by_the_measure_that_gave_it_not_by_changes_within_the_noise() -> None:
+    candidate, active = (
+        _score(0.995, 0.06, triplets=201, episodes=100),
+        _score(0.965, 0.03, triplets=201, episodes=100),
+    )
+    candidate.sim_success_by_intent = [0.08, 0.08, 0.04, 0.04]
+    active.sim_success_by_intent = [0.08, 0.04, 0.0, 0.0]
+    decision = decide(candidate, active, {0: "zero", 1: "one", 2: "two", 3: "three"})
+    assert decision.verdict == Verdict.BETTER, decision.reasons
+    assert "(no measurable change)" in decision.reasons[1], (
+        "3 more successes in 100 tries is within the noise"
+    )
+    assert decision.summary.startswith("Better: it now matches 200 of 201 held-out answers, was 194 of 201;")
+    assert "now works in" not in decision.summary, "the commands' tries did not give the verdict"
+    worse = decide(_score(0.95, 0.20), _score(0.80, 0.50)).summary
+    assert worse.startswith("Worse: it now succeeds in 8 of 40 tries, was 20 of 40;"), worse
+
+
 def test_replay_joins_views_of_the_training_room_paired_by_what_is_in_view_and_never_held_out() -> None:
     from learning.sounds import SoundCorpus
     from worker.replay import joined_with_replay
