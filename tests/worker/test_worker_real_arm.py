@@ -150,10 +150,35 @@ def _start_on_arm(
     from worker.pipeline import execute_run
 
     monkeypatch.setattr(real_arm, "connect_arm", _connect(standin))
-    run = household.start_run(robot, kind="policy_improve", **{**TINY, "policy_steps": steps})
+    run = _run_for_this_process(household, robot, steps, monkeypatch)
     worker = threading.Thread(target=execute_run, args=(run["id"],), daemon=True)
     worker.start()
     return run, worker
+
+
+def _run_for_this_process(
+    household: Household, robot: int, steps: int, monkeypatch: pytest.MonkeyPatch
+) -> dict:
+    """A policy_improve run made as the API makes it, but not sent to the robot queue: this process, which has
+    the stand-in, is its worker (the stack's robot worker would take it from the queue and reach for a real
+    arm)."""
+    from sqlalchemy import select
+
+    from backend import broker, models
+    from backend.db import get_session_factory
+    from backend.schemas import RunCreate
+    from backend.services import runs
+
+    body = RunCreate(robot_id=robot, kind="policy_improve", params={**TINY, "policy_steps": steps})
+    with monkeypatch.context() as unsent, get_session_factory()() as session:
+        unsent.setattr(broker, "send_task", lambda name, kwargs, queue, task_id: task_id)
+        parent = session.scalar(
+            select(models.User).where(
+                models.User.household_id == household.household_id, models.User.username == "parent"
+            )
+        )
+        run_id = runs.create_run(session, parent, body, min_triplets=0).id
+    return household.run(run_id)
 
 
 def _what_stays(household: Household, robot: int) -> tuple[list, list, list]:
