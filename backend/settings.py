@@ -46,6 +46,9 @@ class Settings(BaseSettings):
     min_triplets_for_training: int = Field(default=20, ge=0)
     orphan_grace_seconds: int = 3600
     sse_poll_seconds: float = 1.0
+    # Training workers: where the VAR and the policy run (learning/device.py). auto: the GPU when torch sees
+    # one; cuda: the GPU or the run fails saying what is missing.
+    device: Literal["auto", "cpu", "cuda"] = "auto"
 
     @model_validator(mode="after")
     def _refuse_default_secrets(self) -> "Settings":

@@ -1,5 +1,8 @@
 """Environment speed: steps/s of every world at 64, 96 and 128 px, alone and as 8 worker processes.
 
+The 8-process figure is bench/raw_stepping.py's, the one bench/rl_throughput.py compares the trainer with:
+wall steps/s (the machine's share this bench got) and CPU ms per env step (which the load does not move).
+
 Also: the share of a step spent rendering (time inside PyBullet's getCameraImage), the memory (RSS) of each
 worker process, and for the Kuka the full-detail reference arm next to the default simplified visual model,
 with how many pixels the two differ in. Prints a table and writes bench/results/env_speed.json (a --quick run
@@ -22,10 +25,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 import gymnasium as gym
 from conditions import Conditions, describe
+from raw_stepping import DEFAULT_STEPS, raw_stepping
 from result_files import write_result
 
 import sim
-from sim.vector import make_vector_env
 
 RESULTS = Path(__file__).resolve().parent / "results"
 NUM_ENVS = 8
@@ -48,13 +51,6 @@ class RenderClock:
         pybullet.getCameraImage = timed
 
 
-def rss_mb(pid: int) -> float:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1]) / 1024
-    return float("nan")
-
-
 def single_process(world: str, size: int, steps: int, clock: RenderClock, **env_kwargs) -> dict:
     env = gym.make(sim.WORLDS[world], image_size=size, **env_kwargs)
     rng = np.random.default_rng(0)
@@ -72,20 +68,8 @@ def single_process(world: str, size: int, steps: int, clock: RenderClock, **env_
 
 
 def vectorised(world: str, size: int, steps: int, **env_kwargs) -> dict:
-    envs = make_vector_env(world, NUM_ENVS, image_size=size, **env_kwargs)
-    try:
-        rng = np.random.default_rng(0)
-        envs.reset(seed=0)
-        for _ in range(5):  # warm up the workers
-            envs.step(rng.uniform(-1, 1, (NUM_ENVS, 2)).astype(np.float32))
-        start = time.perf_counter()
-        for _ in range(steps):
-            envs.step(rng.uniform(-1, 1, (NUM_ENVS, 2)).astype(np.float32))
-        elapsed = time.perf_counter() - start
-        memory = [rss_mb(process.pid) for process in envs.processes]
-    finally:
-        envs.close()
-    return {"steps_per_s": NUM_ENVS * steps / elapsed, "rss_mb_per_env": float(np.mean(memory))}
+    """The same measurement as bench/rl_throughput.py's raw stepping (bench/raw_stepping.py)."""
+    return raw_stepping(world, NUM_ENVS, size, steps, **env_kwargs)
 
 
 def fast_versus_full_pixels(frames: int = 10) -> float:
@@ -117,7 +101,7 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="96 px only and fewer steps (about a minute)")
     args = parser.parse_args()
     sizes = [96] if args.quick else [64, 96, 128]
-    single_steps, vector_steps = (60, 25) if args.quick else (300, 120)
+    single_steps, vector_steps = (60, DEFAULT_STEPS) if args.quick else (300, DEFAULT_STEPS)
     console = Console()
     clock = RenderClock()
     conditions = Conditions()
@@ -142,7 +126,8 @@ def main() -> None:
 
     measured = conditions.finish()
     table = Table(title="env steps/s")
-    for column in ("world", "px", "1 process", "step ms", "render share", f"{NUM_ENVS} processes", "RSS/env"):
+    columns = ("world", "px", "1 process", "step ms", "render share", f"{NUM_ENVS} processes", "CPU ms/step")
+    for column in (*columns, "RSS/env"):
         table.add_column(column, justify="left" if column == "world" else "right")
     for row in rows:
         table.add_row(
@@ -152,6 +137,7 @@ def main() -> None:
             f"{row['single']['step_ms']:.2f}",
             f"{100 * row['single']['render_share']:.0f} %",
             f"{row['vector']['steps_per_s']:.0f}",
+            f"{row['vector']['cpu_ms_per_step']:.2f}",
             f"{row['vector']['rss_mb_per_env']:.0f} MB",
         )
     console.print(table)

@@ -4,10 +4,14 @@ bench/results/rl_throughput.json.
     nice -n 10 .venv/bin/python bench/rl_throughput.py --env-groups 1,2   # Kuka, 96 px, 8 envs, 5 updates
     .venv/bin/python bench/rl_throughput.py --world turtlebot --image-size 64 --updates 3
 
-1. raw: `AsyncVectorEnv` of 8 worlds stepped with random actions (no learner at all);
+1. raw: `AsyncVectorEnv` of 8 worlds stepped with random actions (no learner at all), measured by
+bench/raw_stepping.py exactly as bench/env_speed.py measures it;
 2. trainer: the full PPO loop with the VAR reward (a randomly initialised VAR of the same shape: the weights
 do not change the cost), reported as env steps/s over whole updates, with the time shares (waiting for the
-workers, VAR embedding, acting, PPO update). The JSON holds the reference implementation's speed (REFERENCE:
+workers, VAR embedding, acting, PPO update), and the CPU ms per env step of the learner and its workers.
+Two ratios: wall (trainer steps/s over raw steps/s, raw measured before and after) and CPU (raw CPU per
+step over the trainer's): on a shared machine the wall figures move with other people's load, the CPU ones
+do not. The JSON holds the reference implementation's speed (REFERENCE:
 its value, unit and source) beside the ratio to it, and the machine and the load average before and after.
 Earlier runs stay in the file under earlier_runs, each with its own load: compare runs only at a similar load.
 """
@@ -15,11 +19,11 @@ Earlier runs stay in the file under earlier_runs, each with its own load: compar
 import argparse
 import json
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
 from conditions import Conditions, describe
+from raw_stepping import DEFAULT_STEPS, CpuClock, raw_stepping, speed_figures, vector_workers
 from result_files import write_result
 from rich.console import Console
 from rich.table import Table
@@ -35,27 +39,14 @@ REFERENCE = {  # cited, not measured here
 }
 
 
-def raw_speed(world: str, num_envs: int, image_size: int, steps: int) -> float:
-    from learning.rl.envs import make_vector_env, world_id
-
-    envs = make_vector_env(world_id(world), num_envs, image_size)
-    try:
-        envs.reset(seed=0)
-        rng = np.random.default_rng(0)
-        for _ in range(10):  # warm-up
-            envs.step(rng.uniform(-1, 1, (num_envs, 2)).astype(np.float32))
-        start = time.perf_counter()
-        for _ in range(steps):
-            envs.step(rng.uniform(-1, 1, (num_envs, 2)).astype(np.float32))
-        return steps * num_envs / (time.perf_counter() - start)
-    finally:
-        envs.close()
+def raw_speed(world: str, num_envs: int, image_size: int, steps: int) -> dict[str, float]:
+    """bench/raw_stepping.py, the same measurement bench/env_speed.py reports."""
+    return raw_stepping(world, num_envs, image_size, steps)
 
 
 def trainer_speed(
     world: str, num_envs: int, image_size: int, updates: int, policy_image_size: int, env_groups: int
 ) -> dict:
-    import numpy as np
 
     from learning.rl.frozen_var import LoadedVar
     from learning.rl.ppo import PPOConfig, PPOTrainer
@@ -83,16 +74,16 @@ def trainer_speed(
             from learning.rl.ppo import Timings
 
             trainer.timings = Timings()
-            start = time.perf_counter()
+            clock = CpuClock(worker for envs in trainer.envs.vector_envs for worker in vector_workers(envs))
+            clock.start()
             for _ in range(updates):
                 trainer.run_one_update()
-            elapsed = time.perf_counter() - start
+            clock.stop()
         finally:
             trainer.close()
-    steps = updates * config.batch_size
     return {
-        "steps_per_s": steps / elapsed,
-        "seconds_per_update": elapsed / updates,
+        **speed_figures(updates * config.batch_size, clock),
+        "seconds_per_update": clock.wall_s / updates,
         "batch": config.batch_size,
         "time_shares": trainer.timings.shares(),
         "peak_memory_mb": trainer.memory.peak_mb,
@@ -116,7 +107,9 @@ def main() -> None:
     parser.add_argument("--policy-image-size", type=int, default=32)
     parser.add_argument("--envs", type=int, default=8)
     parser.add_argument("--updates", type=int, default=5)
-    parser.add_argument("--raw-steps", type=int, default=150, help="vector steps for the raw measurement")
+    parser.add_argument(
+        "--raw-steps", type=int, default=DEFAULT_STEPS, help="vector steps for the raw measurement"
+    )
     parser.add_argument(
         "--env-groups", default="2", help="comma-separated: 1 = lockstep, 2 = two groups in turn"
     )
@@ -131,7 +124,13 @@ def main() -> None:
             args.world, args.envs, args.image_size, args.updates, args.policy_image_size, groups
         )
     raw_after = raw_speed(args.world, args.envs, args.image_size, args.raw_steps)
-    raw = (raw_before + raw_after) / 2
+    raw = (raw_before["steps_per_s"] + raw_after["steps_per_s"]) / 2
+    raw_cpu = (raw_before["cpu_ms_per_step"] + raw_after["cpu_ms_per_step"]) / 2
+    for trainer in trainers.values():
+        trainer["ratio_to_raw"] = trainer["steps_per_s"] / raw
+        # CPU the raw envs need per step over CPU the whole trainer needs: the wall ratio on a machine the
+        # bench has to itself, whatever else runs here now
+        trainer["cpu_ratio_to_raw"] = raw_cpu / trainer["cpu_ms_per_step"]
     measured = conditions.finish()
     best = max(trainers.values(), key=lambda t: t["steps_per_s"])
     result = {
@@ -141,10 +140,12 @@ def main() -> None:
         "policy_image_size": args.policy_image_size,
         "num_envs": args.envs,
         "raw_env_steps_per_s": raw,
+        "raw_cpu_ms_per_step": raw_cpu,
         "raw_before_after": [raw_before, raw_after],
         "trainer_by_env_groups": trainers,
         "trainer_steps_per_s": best["steps_per_s"],
-        "ratio_to_raw": best["steps_per_s"] / raw,
+        "ratio_to_raw": best["ratio_to_raw"],
+        "cpu_ratio_to_raw": best["cpu_ratio_to_raw"],
         "reference": REFERENCE,
         "speedup_over_reference": best["steps_per_s"] / REFERENCE["value"],
         **measured,
@@ -152,11 +153,17 @@ def main() -> None:
     table = Table(title=f"RL throughput: {args.world}, {args.image_size} px, {args.envs} envs")
     table.add_column("measure")
     table.add_column("value", justify="right")
-    table.add_row("raw env steps/s (random actions, before / after)", f"{raw_before:.1f} / {raw_after:.1f}")
+    table.add_row(
+        "raw env steps/s (random actions, before / after)",
+        f"{raw_before['steps_per_s']:.1f} / {raw_after['steps_per_s']:.1f}",
+    )
+    table.add_row("raw CPU ms per env step (all processes)", f"{raw_cpu:.2f}")
     for groups, trainer in trainers.items():
         label = "lockstep" if groups == 1 else f"{groups} groups in turn"
         table.add_row(f"trainer env steps/s ({label})", f"{trainer['steps_per_s']:.1f}")
-        table.add_row("  trainer / raw", f"{trainer['steps_per_s'] / raw:.2f}")
+        table.add_row("  trainer / raw (wall)", f"{trainer['ratio_to_raw']:.2f}")
+        table.add_row("  CPU ms per env step (learner + workers)", f"{trainer['cpu_ms_per_step']:.2f}")
+        table.add_row("  trainer / raw (CPU)", f"{trainer['cpu_ratio_to_raw']:.2f}")
         table.add_row("  seconds per 800-step update", f"{trainer['seconds_per_update']:.2f}")
         for part, share in trainer["time_shares"].items():
             table.add_row(f"  share {part.removesuffix('_s')}", f"{share:.1%}")

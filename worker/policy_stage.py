@@ -66,11 +66,15 @@ def improve_policy(
     """PPO from `policy_checkpoint`; `on_update(fraction, point)` after each update (True: stop),
     `on_rollout_step` after each step of env 0 (`learning.rl.ppo.RolloutStep`: the live view). With
     `robot_env_context` (`learning.rl.env_groups.in_process_env`: a real robot), PPO runs on that one
-    environment in this process instead of simulated worlds."""
+    environment in this process instead of simulated worlds. The VAR and the policy run where the worker's
+    VARBOT_DEVICE says (`learning.device.resolve_device`)."""
+    from backend.settings import get_settings
+    from learning.device import resolve_device
     from learning.rl.env_groups import IN_PROCESS
     from learning.rl.ppo import PPOConfig, read_policy_checkpoint
     from learning.rl.run import train_run
 
+    device = resolve_device(get_settings().device)  # before anything starts: a missing GPU fails at once
     base = PPOConfig.from_dict(read_policy_checkpoint(policy_checkpoint)["config"])
     if base.goal_encoder != "var":
         raise ValueError(f"{policy_checkpoint} was not trained with the VAR; it cannot improve itself")
@@ -111,6 +115,7 @@ def improve_policy(
         progress=False,
         on_update=hook,
         on_rollout_step=on_rollout_step,
+        device=device,
     )
     if int(summary["updates"]) < updates_total:
         from worker.progress import Cancelled

@@ -84,11 +84,14 @@ def make_env_fn(
     max_steps: int | None = None,
     schedule: Sequence[tuple[int, int]] | None = None,
     domain: Any = None,
+    world_options: dict[str, Any] | None = None,
 ) -> Callable[[], gym.Env]:
+    """`world_options`: further keyword arguments of the world (benches: `visual_detail="full"`)."""
+
     def make() -> gym.Env:
         import sim  # noqa: F401  (registers the worlds inside the worker)
 
-        kwargs: dict[str, Any] = {"image_size": image_size, "max_steps": max_steps}
+        kwargs: dict[str, Any] = {"image_size": image_size, "max_steps": max_steps, **(world_options or {})}
         if success_rule is not None:  # None: the world's own rule (Kuka "final", TurtleBot "hold")
             kwargs["success_rule"] = success_rule
         if domain is not None:
@@ -107,6 +110,7 @@ def make_vector_env(
     schedules: Sequence[Sequence[tuple[int, int]]] | None = None,
     domain: Any = None,
     context: str = "forkserver",
+    world_options: dict[str, Any] | None = None,
 ) -> AsyncVectorEnv:
     """`num_envs` worlds in their own processes, reset in the same step as they end (final observation in
     `info["final_obs"]`, the final step's info in `info["final_info"]`)."""
@@ -116,7 +120,13 @@ def make_vector_env(
         multiprocessing.set_forkserver_preload(["learning.rl.envs", "sim.kuka_blocks", "sim.turtlebot_arena"])
     fns = [
         make_env_fn(
-            world_id, image_size, success_rule, max_steps, schedules[i] if schedules else None, domain
+            world_id,
+            image_size,
+            success_rule,
+            max_steps,
+            schedules[i] if schedules else None,
+            domain,
+            world_options,
         )
         for i in range(num_envs)
     ]

@@ -5,6 +5,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from learning.var.model import VAR
 
 
@@ -52,3 +54,23 @@ def triplet_labels(payload: dict[str, Any]) -> dict[str, int]:
         if meta.is_file():
             return {"var_triplet_labels": 2 * int(json.loads(meta.read_text())["count"])}
     return {}
+
+
+class VarOnDevice:
+    """A frozen VAR whose weights sit on `device` (a GPU): it takes and returns CPU tensors as the VAR does,
+    so the trainer's buffers and rewards stay on the CPU."""
+
+    def __init__(self, model: VAR, device: torch.device) -> None:
+        self.model = model.to(device)
+        self.device = device
+        self.config = model.config
+
+    def encode_image(self, images: torch.Tensor) -> torch.Tensor:
+        return self.model.encode_image(images.to(self.device)).cpu()
+
+    def encode_sound(self, features: torch.Tensor) -> torch.Tensor:
+        return self.model.encode_sound(features.to(self.device)).cpu()
+
+    def encode_silence(self) -> torch.Tensor:
+        with self.device:  # the VAR makes its silence with torch.zeros: on the weights' device
+            return self.model.encode_silence().cpu()

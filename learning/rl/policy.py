@@ -162,6 +162,17 @@ class Policy(nn.Module):
             self.aux_view = layer_init(nn.Linear(h, config.num_intents + 1), std=0.01)
             self.aux_goal = layer_init(nn.Linear(goal_features, config.num_intents), std=0.01)
 
+    # -- where the weights are ------------------------------------------------------------------------------
+    # step, encode_goal, evaluate_sequences and auxiliary_loss take and return CPU tensors wherever the
+    # weights are (`.to(device)`): the trainer's buffers stay on the CPU and only the network runs on a GPU.
+    # On the CPU both moves are no-ops.
+    @property
+    def device(self) -> torch.device:
+        return self.actor_logstd.device
+
+    def _here(self, *tensors: torch.Tensor) -> list[torch.Tensor]:
+        return [tensor.to(self.device) for tensor in tensors]
+
     # -- pieces ----------------------------------------------------------------------------------------------
     def initial_state(self, batch: int) -> torch.Tensor:
         return torch.zeros(batch, self.config.hidden)
@@ -173,8 +184,9 @@ class Policy(nn.Module):
     def encode_goal(self, goal: torch.Tensor) -> torch.Tensor:
         """goal: (B, goal_dim) VAR embedding, or (B, 100, 40) MFCC for a learned encoder. Once per episode.
         With goal_match the raw embedding rides along (last goal_dim columns) for the per-step match."""
+        (goal,) = self._here(goal)
         features = self.goal_encoder(goal)
-        return torch.cat([features, goal], dim=-1) if self.config.goal_match else features
+        return (torch.cat([features, goal], dim=-1) if self.config.goal_match else features).cpu()
 
     def encode_inputs(
         self, images: torch.Tensor, var_embedding: torch.Tensor, state: torch.Tensor
@@ -210,10 +222,11 @@ class Policy(nn.Module):
         self, inputs: torch.Tensor, goal_features: torch.Tensor, heard: torch.Tensor, intent: torch.Tensor
     ) -> torch.Tensor:
         """RSI-style: classify what is in view (intents + "nothing") and which intent the goal is."""
+        inputs, goal_features, heard, intent = self._here(inputs, goal_features, heard, intent)
         view_labels = torch.where(heard == NO_SOUND, self.config.num_intents, heard)
         view = F.cross_entropy(self.aux_view(inputs.flatten(0, 1)), view_labels.flatten())
         goal = F.cross_entropy(self.aux_goal(goal_features.flatten(0, 1)), intent.flatten())
-        return view + goal
+        return (view + goal).cpu()
 
     # -- one environment step (rollout) ----------------------------------------------------------------------
     def step(
@@ -226,15 +239,19 @@ class Policy(nn.Module):
         episode_start: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Returns (action mean, value, new hidden). `episode_start` (B,) zeroes the hidden state first."""
+        images, var_embedding, state, goal_features, hidden, episode_start = self._here(
+            images, var_embedding, state, goal_features, hidden, episode_start
+        )
         hidden = hidden * (1.0 - episode_start).unsqueeze(-1)
         inputs = self.encode_inputs(images, var_embedding, state)
         core, _ = self.gru(inputs.unsqueeze(0), hidden.unsqueeze(0))
         hidden = core[0]
         mean, value = self.heads(hidden, inputs, goal_features, var_embedding)
-        return mean, value, hidden
+        return mean.cpu(), value.cpu(), hidden.cpu()
 
     def distribution(self, mean: torch.Tensor) -> Normal:
-        return Normal(mean, self.actor_logstd.expand_as(mean).exp())
+        # validate_args=False: the same numbers without checking every argument (per step, per group)
+        return Normal(mean, self.actor_logstd.to(mean.device).expand_as(mean).exp(), validate_args=False)
 
     # -- whole sequences (PPO update) ------------------------------------------------------------------------
     def evaluate_sequences(
@@ -252,6 +269,9 @@ class Policy(nn.Module):
         or two stretches per rollout), resetting the state of the environments that start a new episode.
         Returns (action means (T, B, A), values (T, B), core features before the GRU (T, B, hidden)).
         """
+        images, var_embedding, state, goal_features, hidden, episode_start = self._here(
+            images, var_embedding, state, goal_features, hidden, episode_start
+        )
         steps, batch = episode_start.shape
         flat = lambda x: x.reshape(steps * batch, *x.shape[2:])  # noqa: E731
         inputs = self.encode_inputs(flat(images), flat(var_embedding), flat(state)).view(steps, batch, -1)
@@ -264,4 +284,4 @@ class Policy(nn.Module):
             cores.append(out)
         core = torch.cat(cores)
         mean, value = self.heads(flat(core), flat(inputs), flat(goal_features), flat(var_embedding))
-        return mean.view(steps, batch, -1), value.view(steps, batch), inputs
+        return mean.view(steps, batch, -1).cpu(), value.view(steps, batch).cpu(), inputs.cpu()

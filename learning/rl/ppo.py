@@ -23,6 +23,7 @@ so a resumed run makes exactly the same next updates as one that never stopped.
 """
 
 import json
+import os
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields
@@ -34,6 +35,7 @@ import torch
 from torch import nn
 
 from core.rooms import world_room
+from learning.device import core_plan, spread_processes
 from learning.rl.checkpoints import (  # the F401 ones: callers reach them through this module
     CHECKPOINT_KIND,  # noqa: F401
     load_initial_policy,
@@ -45,7 +47,7 @@ from learning.rl.checkpoints import (  # the F401 ones: callers reach them throu
 )
 from learning.rl.curriculum import Curriculum
 from learning.rl.env_groups import EnvGroups, ended_view
-from learning.rl.frozen_var import LoadedVar
+from learning.rl.frozen_var import LoadedVar, VarOnDevice
 from learning.rl.goals import EpisodeGoals, goal_source
 from learning.rl.normalize import ReturnNormalizer
 from learning.rl.policy import GoalFusion, Policy, PolicyConfig, downsample_images
@@ -196,7 +198,10 @@ class PPOTrainer:
         goals: ClipBank,
         current_sounds: ClipBank | None = None,
         init_policy: Path | None = None,
+        device: str | torch.device = "cpu",
     ) -> None:
+        """`device`: where the VAR and the policy run (`learning.device.resolve_device`); the rollout buffers
+        and everything else stay on the CPU."""
         config.validate()
         self.config = config
         self.run_dir = Path(run_dir)
@@ -216,6 +221,7 @@ class PPOTrainer:
         self.goals = goals
         self.current_sounds = current_sounds if config.current_sound else None
         self.init_policy = init_policy
+        self.device = torch.device(device)
         self.update_index = 0  # updates completed
         self.global_step = 0
         self.rng = np.random.default_rng(config.seed)
@@ -237,7 +243,11 @@ class PPOTrainer:
             c.world, c.num_envs, c.env_groups, c.image_size, c.success_rule, c.max_episode_steps,
             c.env_context, domain=world_room(c.room),
         )  # fmt: skip
-        torch.set_num_threads(c.torch_threads)
+        plan = core_plan(os.cpu_count() or 1, c.num_envs, self.device, c.torch_threads)
+        spread_processes(plan, self.envs.worker_processes())
+        torch.set_num_threads(plan.learner_threads)
+        if self.var is not None and self.device.type != "cpu":
+            self.var = VarOnDevice(self.var, self.device)
         # f_S of every clip once, after the thread count is set: the same clips embedded with another number
         # of threads differ in the last bits, and a resumed run would then not repeat the original one exactly
         if self.var is not None and self.goals.embeddings is None:
@@ -260,6 +270,7 @@ class PPOTrainer:
             self.label_counts.update(load_encoders_into(self.policy, c.init_encoders))
         if self.init_policy is not None:
             load_initial_policy(self.policy, self.init_policy)
+        self.policy.to(self.device)
         self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=c.learning_rate, eps=1e-5)
         self.goal_source = goal_source(c.goal_encoder, self.goals)
         self.hidden = self.policy.initial_state(c.num_envs)
@@ -391,13 +402,17 @@ class PPOTrainer:
             self.next_policy_images[group], self.next_var[group], self.next_state[group],
             self.episode_goals.features[group], self.hidden[group], self.next_start[group],
         )  # fmt: skip
-        std = self.policy.actor_logstd.exp().expand_as(mean)
-        action = mean + std * torch.randn(mean.shape, generator=self.torch_rng)
+        distribution = self.policy.distribution(mean)
+        action = mean + distribution.stddev * torch.randn(mean.shape, generator=self.torch_rng)
         buf.actions[t, group] = action
-        buf.logprobs[t, group] = self.policy.distribution(mean).log_prob(action).sum(-1)
+        buf.logprobs[t, group] = distribution.log_prob(action).sum(-1)
         buf.values[t, group] = value
-        envs.step_async(action.clamp(-1.0, 1.0).numpy())
         self.timings.policy_s += time.perf_counter() - tick
+        # handing the actions over is environment time: on a busy machine the kernel often runs a woken
+        # worker before the send returns (it made the policy look like half the time)
+        tick = time.perf_counter()
+        envs.step_async(action.clamp(-1.0, 1.0).numpy())
+        self.timings.env_s += time.perf_counter() - tick
 
     def _after_step(
         self, group: slice, obs: dict, terminated: np.ndarray, truncated: np.ndarray, info: dict,

@@ -11,6 +11,8 @@ from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from learning.rl.frozen_var import LoadedVar, load_frozen_var
 from learning.rl.ppo import PPOConfig, PPOTrainer, RolloutStep
 from learning.rl.rewards import ClipBank, corpus_bank
@@ -29,6 +31,7 @@ def make_trainer(
     goals: ClipBank | None = None,
     init_policy: Path | None = None,
     resume: bool = False,
+    device: str | torch.device = "cpu",
 ) -> PPOTrainer:
     """A started trainer (workers running). With `resume`, continue from `run_dir/checkpoint.pt` if present;
     the stored config must then match the given one except for `total_steps` (which may grow)."""
@@ -56,7 +59,9 @@ def make_trainer(
     if goals is None:
         goals = corpus_bank(config.sounds, config.goal_split, front_end=front_end)
     current = corpus_bank(config.sounds, "train", front_end=front_end) if config.current_sound else None
-    trainer = PPOTrainer(config, run_dir, var, goals, current_sounds=current, init_policy=init_policy)
+    trainer = PPOTrainer(
+        config, run_dir, var, goals, current_sounds=current, init_policy=init_policy, device=device
+    )
     trainer.start()
     if resume and checkpoint.exists():
         trainer.load_checkpoint(checkpoint)
@@ -73,10 +78,12 @@ def train_run(
     progress: bool = True,
     on_update: Callable[[dict[str, Any]], bool | None] | None = None,
     on_rollout_step: Callable[[RolloutStep], None] | None = None,
+    device: str | torch.device = "cpu",
 ) -> dict[str, Any]:
+    """`device`: where the VAR and the policy run (`learning.device.resolve_device`)."""
     from learning.rl.plots import plot_run
 
-    trainer = make_trainer(config, run_dir, var_path, goals, init_policy, resume)
+    trainer = make_trainer(config, run_dir, var_path, goals, init_policy, resume, device)
     try:
         summary = trainer.train(progress=progress, on_update=on_update, on_rollout_step=on_rollout_step)
     finally:

@@ -77,7 +77,7 @@ class EpisodeTracker:
 
 @dataclass
 class Timings:
-    env_s: float = 0.0  # waiting for the workers to step
+    env_s: float = 0.0  # handing actions to the workers and waiting for them to step
     var_s: float = 0.0  # f_I on the new images (reward + next observation)
     policy_s: float = 0.0  # acting (policy forward + sampling) and preparing observations
     update_s: float = 0.0

@@ -9,8 +9,9 @@ from pathlib import Path
 from conditions import Conditions, describe, load_average
 
 BENCH = Path(__file__).resolve().parents[2] / "bench"
-HELPERS = {  # imported by the benches, or maintaining their results: they measure nothing
+HELPERS = {  # imported by the benches (which record the conditions), or maintaining their results
     "conditions.py", "result_files.py", "results_tool.py", "reproduce_records.py", "reproduce_table.py",
+    "raw_stepping.py",
 }  # fmt: skip
 
 
