@@ -17,7 +17,8 @@ training copy uses, the same rooms for both front ends.
 Rows with no training, `frozen`, read each front end's features mean- and max-pooled and standardised against
 the training clips' class centroids. CPU ms per clip: one thread, from WAV bytes to features (Wordset clips,
 and clips cut to 1 s). Runs train two at a time (one thread each) and a finished run is reused (its seconds
-come from its metrics). Results: bench/results/voices.json with /proc/loadavg before and after.
+come from its metrics). Results: bench/results/voices.json with /proc/loadavg before and after (of the last
+run: trainings it reused ran earlier, at the load of their own time).
 """
 
 import argparse
@@ -40,6 +41,7 @@ OUTPUT = RESULTS / "voices.json"
 WORLD = "kuka"
 FRONT_ENDS = ("mfcc", "speech-embedding")
 DEFAULT_RUNS = (
+    "wordset-multilingual:speech-embedding:2:2",
     "wordset-multilingual:speech-embedding:2",
     "wordset-multilingual:mfcc:2",
     "wordset:speech-embedding:2",
@@ -60,6 +62,7 @@ class Run:
     sounds: str
     front_end: str
     room_copies: int
+    speed_copies: int = 0
 
     @classmethod
     def parse(cls, text: str) -> "Run":
@@ -67,15 +70,21 @@ class Run:
         from learning.sounds import sound_set
 
         try:
-            sounds, front_end, copies = text.split(":")
-            run = cls(sound_set(sounds).name, check_front_end(front_end), int(copies))
+            sounds, front_end, *copies = text.split(":")
+            if len(copies) not in (1, 2):
+                raise ValueError("one or two numbers of copies")
+            counts = [int(count) for count in copies]
+            run = cls(sound_set(sounds).name, check_front_end(front_end), *counts)
         except ValueError as error:
-            raise SystemExit(f"--runs: {text!r} is not SET:FRONT_END:ROOM_COPIES ({error})") from None
+            raise SystemExit(
+                f"--runs: {text!r} is not SET:FRONT_END:ROOM_COPIES[:SPEED_COPIES] ({error})"
+            ) from None
         return run
 
     @property
     def key(self) -> str:
-        return f"{self.sounds}:{self.front_end}:rooms{self.room_copies}"
+        speed = f":speed{self.speed_copies}" if self.speed_copies else ""
+        return f"{self.sounds}:{self.front_end}:rooms{self.room_copies}{speed}"
 
 
 def parse_arguments() -> argparse.Namespace:
@@ -96,8 +105,9 @@ def parse_arguments() -> argparse.Namespace:
 def run_dir(run: Run, args: argparse.Namespace) -> Path:
     from core.paths import data_subdir
 
+    speed = f"-speed{run.speed_copies}" if run.speed_copies else ""
     name = (
-        f"{run.sounds}-{run.front_end}-rooms{run.room_copies}-{args.views}views-{args.image_size}px-"
+        f"{run.sounds}-{run.front_end}-rooms{run.room_copies}{speed}-{args.views}views-{args.image_size}px-"
         f"{args.steps}steps-seed{args.seed}"
     )
     return data_subdir("bench", "voices", name)
@@ -122,6 +132,7 @@ def start_training(run: Run, train_views, args: argparse.Namespace):
     command = [
         str(Path(sys.executable).with_name("varbot")), "var", "train", str(train_views.path),
         "--sounds", run.sounds, "--front-end", run.front_end, "--room-copies", str(run.room_copies),
+        "--speed-copies", str(run.speed_copies),
         "--run-dir", str(folder), "--max-steps", str(args.steps), "--batch-size", str(args.batch_size),
         "--threads", "1", "--seed", str(args.seed),
     ]  # fmt: skip
@@ -189,6 +200,7 @@ def score_run(run: Run, corpus, test_views, args: argparse.Namespace) -> dict:
         "sounds": run.sounds,
         "front_end": run.front_end,
         "room_copies": run.room_copies,
+        "speed_copies": run.speed_copies,
         "tiers": tiers,
         "image_to_command": evaluation["image_to_command"],
         "training_seconds": training_seconds(run, args),
@@ -255,7 +267,8 @@ def print_tables(result: dict) -> None:
         table.add_column("image → cmd", justify="right")
         table.add_column("train s", justify="right")
         for run in runs.values():
-            cells = [f"{run['front_end']}, {run['room_copies']} room copies"]
+            speed = f", {run['speed_copies']} speed copies" if run.get("speed_copies") else ""
+            cells = [f"{run['front_end']}, {run['room_copies']} room copies{speed}"]
             for tier in tiers:
                 scores = run["tiers"][tier]
                 cells.append(f"{scores['nearest_command_accuracy']:.1%} / {scores['triplet_accuracy']:.1%}")
