@@ -38,7 +38,7 @@ def legend_html(commands: list[str]) -> str:
             "small dots: views the robot saw, in the colour of the command they are closest to",
         ),
         _row(_swatch((200, 200, 200), "diamond"), "diamonds: your recordings of each command"),
-        _row(_swatch(CURRENT_COLOUR, "circle"), "white ball: what the robot sees right now"),
+        _row(_swatch(CURRENT_COLOUR, "circle"), "white ball: where the robot's view right now lands"),
         _row(
             _swatch(GOAL_COLOUR, "circle"), "yellow ball: the command it is carrying out (or the one chosen)"
         ),
@@ -51,10 +51,11 @@ def legend_html(commands: list[str]) -> str:
 
 
 class SphereLegend:
-    """The legend's folder in the panel, redrawn only when the household's commands change."""
+    """The legend's folder in the panel, just below `after` (the status line), so that it is seen without
+    scrolling the panel; redrawn only when the household's commands change."""
 
-    def __init__(self, gui: viser.GuiApi) -> None:
-        with gui.add_folder("What the sphere shows"):
+    def __init__(self, gui: viser.GuiApi, after: viser.GuiMarkdownHandle) -> None:
+        with gui.add_folder("What the sphere shows", order=after.order + 0.5):
             self.html = gui.add_html(legend_html([]))
         self.commands: list[str] = []
 

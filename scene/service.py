@@ -82,7 +82,7 @@ class SceneService:
         )
         self.world_view = WorldView(self.server)
         self.sphere_view = SphereView(self.server.scene)
-        self.legend = SphereLegend(self.server.gui)
+        self.legend = SphereLegend(self.server.gui, after=self.panel.status)
         self.inbox = SceneInbox(household_id, self._on_request, self.stop_event)
         self.try_reports = TryReports()
 
@@ -120,7 +120,7 @@ class SceneService:
         self.stop_event.set()
 
     def _unwatched_for_too_long(self) -> bool:
-        if self.server.get_clients():
+        if self.server.get_clients() or self.trial is not None:  # a try from the Record page counts too
             self.last_watched = time.monotonic()
         return self.idle_stop_s is not None and time.monotonic() - self.last_watched > self.idle_stop_s
 
@@ -274,6 +274,7 @@ class SceneService:
             self._take_voice(VoiceTry.from_request(request, self.household_id))
 
     def _take_voice(self, voice: VoiceTry) -> None:
+        self.last_watched = time.monotonic()  # a member uses the scene, watched or not
         if not accepted(voice, self.try_reports):
             return
         shown = self.view.robot.id if self.view.robot is not None else None

@@ -123,7 +123,7 @@ def test_on_the_scene_page_a_held_button_drives_the_robot_and_the_sphere_has_a_l
     legend.wait_for(timeout=60_000)
     frame.locator(".varbot-legend", has_text="“zero”").wait_for(timeout=60_000)
     text = legend.inner_text()
-    for meaning in ("“three”", "what the robot sees right now", "your recordings", "closest to none"):
+    for meaning in ("“three”", "the robot's view right now", "your recordings", "closest to none"):
         assert meaning in text, text
 
     for attempt in ("first", "second"):

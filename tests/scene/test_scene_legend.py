@@ -21,7 +21,7 @@ def test_each_command_is_named_in_the_colour_its_points_have_on_the_sphere() -> 
 def test_the_markers_and_shapes_are_explained() -> None:
     legend = legend_html(["name:zero"])
     assert rgb(UNASSIGNED) in legend and "closest to none of your commands" in legend
-    assert rgb(CURRENT_COLOUR) in legend and "what the robot sees right now" in legend
+    assert rgb(CURRENT_COLOUR) in legend and "the robot's view right now" in legend
     assert rgb(GOAL_COLOUR) in legend and "the command it is carrying out" in legend
     assert "views the robot saw" in legend and "diamonds: your recordings" in legend
 

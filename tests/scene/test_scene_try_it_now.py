@@ -77,6 +77,8 @@ def test_a_live_voice_is_carried_out_and_reported_in_the_households_words_and_no
     scene = scene_with_a_model
     home = scene_household.household_id
     eventually(lambda: scene.model.has_policy and scene.sphere is not None, 60, "the model and sphere")
+    legend = scene.legend.html.content
+    assert "“zero”" in legend and "“three”" in legend, "the sphere's legend speaks the household's words"
     before = clips_stored(home)
     try_id = scene_requests.ask_to_try(home, scene_household.robot_id, tone(320, 1.2))
     assert scene_requests.read_try(try_id, home)["state"] == "starting", "the page can say so at once"

@@ -100,3 +100,14 @@ export class Recorder {
     this.stream = null;
   }
 }
+
+/** A press-and-hold button: `begin` while it is held down (the pointer stays with it), `finish` when let go. */
+export function onHold(button, begin, finish) {
+  button.addEventListener("pointerdown", (event) => {
+    button.setPointerCapture(event.pointerId);
+    begin();
+  });
+  button.addEventListener("pointerup", finish);
+  button.addEventListener("pointercancel", finish);
+  button.addEventListener("contextmenu", (event) => event.preventDefault());
+}

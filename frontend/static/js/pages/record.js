@@ -1,5 +1,5 @@
 import { api, uploadWithProgress } from "../api.js";
-import { Recorder } from "../recorder.js";
+import { Recorder, onHold } from "../recorder.js";
 import { listening, tryItNow } from "../try_now.js";
 import { describeCounts, groupCommands, targetsSentence } from "../commands.js";
 import { element, pageFailed, pageReady, savedRobot, say, startPage, when } from "../shell.js";
@@ -183,13 +183,7 @@ function isTyping(event) {
 
 async function main() {
   ({ me } = await startPage("record"));
-  talk.addEventListener("pointerdown", (event) => {
-    talk.setPointerCapture(event.pointerId);
-    begin();
-  });
-  talk.addEventListener("pointerup", finish);
-  talk.addEventListener("pointercancel", finish);
-  talk.addEventListener("contextmenu", (event) => event.preventDefault());
+  onHold(talk, begin, finish);
   document.addEventListener("keydown", (event) => {
     if (event.code !== "Space" || isTyping(event) || (event.target.tagName === "BUTTON" && event.target !== talk)) return;
     event.preventDefault();

@@ -1,7 +1,7 @@
 // The Scene page's own controls beside the 3D view: which of the household's robots the scene shows, and
 // "try it now" (hold the button or T, say a command, let go: the robot in the scene carries it out, nothing is kept).
 import { api } from "../api.js";
-import { Recorder } from "../recorder.js";
+import { Recorder, onHold } from "../recorder.js";
 import { listening, tooShort, tryFailed, tryItNow } from "../try_now.js";
 import { element, say } from "../shell.js";
 
@@ -12,7 +12,7 @@ async function offerRobots() {
   const [robots, shown] = await Promise.all([api("/robots"), api("/scene/robot")]);
   const choice = $("scene-robot");
   choice.replaceChildren(
-    element("option", { value: LATEST, text: "the one whose model was made active last" }),
+    element("option", { value: LATEST, text: "the robot with the newest model" }),
     ...robots.map((robot) => element("option", { value: String(robot.id), text: `${robot.name} (${robot.kind})` })),
   );
   if (shown.robot_id !== null && robots.some((r) => r.id === shown.robot_id)) choice.value = String(shown.robot_id);
@@ -59,13 +59,7 @@ function holdToTalk(button, message) {
     const robot = $("scene-robot").value;
     tryItNow(take.wav, robot === LATEST ? null : Number(robot), message);
   };
-  button.addEventListener("pointerdown", (event) => {
-    button.setPointerCapture(event.pointerId);
-    begin();
-  });
-  button.addEventListener("pointerup", finish);
-  button.addEventListener("pointercancel", finish);
-  button.addEventListener("contextmenu", (event) => event.preventDefault());
+  onHold(button, begin, finish);
   const isT = (event) => event.key.toLowerCase() === "t" && !["INPUT", "SELECT", "TEXTAREA"].includes(event.target.tagName);
   document.addEventListener("keydown", (event) => isT(event) && !event.repeat && begin());
   document.addEventListener("keyup", (event) => isT(event) && finish());
