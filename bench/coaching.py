@@ -11,13 +11,16 @@ the step count is what a paced session of N minutes takes.
 
     nice -n 10 .venv/bin/python bench/coaching.py [--minutes 2] [--seeds 0 1 2] [--episodes-per-command 10]
 
-Writes bench/results/coaching.json (every seed) with the load average before/after, and prints a table.
+Writes bench/results/coaching.json (every seed) with the load average before/after, and prints a table. Each
+finished piece (the base's evaluation, each session and its evaluation) is kept under
+<data dir>/bench/coaching/<settings>/, so a stopped run started again with the same settings goes on from
+there.
 """
 
 import argparse
-import tempfile
+import json
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +29,7 @@ from conditions import Conditions, describe
 from result_files import write_result
 from tqdm.auto import tqdm
 
+from core.paths import data_subdir
 from learning.rl.coaching import (
     DEFAULT_STEPS_PER_S,
     CoachingSettings,
@@ -61,14 +65,18 @@ class SimulatedCoach:
 
 def success(policy_path: Path, var: torch.nn.Module, goals: ClipBank, episodes: int, seed: int) -> dict:
     policy, _ = load_policy(policy_path)
+    started = time.perf_counter()
     result = evaluate(
         policy, var, goals, "kuka", var.config.image_size, "coaching", episodes, seed, num_envs=2,
         progress=False,
     )  # fmt: skip
-    return {"success_rate": result.success_rate, "success_by_intent": result.success_by_intent}
+    return {
+        "success_rate": result.success_rate, "success_by_intent": result.success_by_intent,
+        "eval_s": round(time.perf_counter() - started, 1),
+    }  # fmt: skip
 
 
-def improve(condition: str, seed: int, steps: int, goals: ClipBank, var: torch.nn.Module, out: Path) -> dict:
+def improve(condition: str, seed: int, steps: int, goals: ClipBank, out: Path) -> dict:
     coach = SimulatedCoach(goals, seed) if condition == "coached" else SilentCoach()
     settings = CoachingSettings(steps=steps, steps_per_s=None, seed=seed)
     started = time.perf_counter()
@@ -79,19 +87,32 @@ def improve(condition: str, seed: int, steps: int, goals: ClipBank, var: torch.n
     return {"voiced_steps": voiced, "env_steps": steps, "train_s": round(time.perf_counter() - started, 1)}
 
 
+def kept(path: Path, make: Callable[[], dict]) -> dict:
+    """The piece stored at `path` by an earlier run with the same settings, or made now and stored."""
+    if path.exists():
+        return json.loads(path.read_text())
+    made = make()
+    path.write_text(json.dumps(made))
+    return made
+
+
 def measure(minutes: float, seeds: list[int], episodes: int, split: str, eval_seed: int) -> dict:
     var = load_var(BASE / "var.pt").eval()
     goals = corpus_bank("wordset", split, front_end=var.front_end).embed(var)
     steps = int(minutes * 60 * DEFAULT_STEPS_PER_S)
-    before = success(BASE / "policy.pt", var, goals, episodes, eval_seed)
+    work = data_subdir("bench", "coaching", f"{split}-{steps}steps-{episodes}eps-eval{eval_seed}")
+    before = kept(work / "before.json", lambda: success(BASE / "policy.pt", var, goals, episodes, eval_seed))
     runs = []
-    work = Path(tempfile.mkdtemp(prefix="bench-coaching-"))
     for seed in tqdm(seeds, desc="seeds", unit="seed"):
         for condition in CONDITIONS:
             out = work / f"{condition}-{seed}"
-            trained = improve(condition, seed, steps, goals, var, out)
-            after = success(out / "checkpoint.pt", var, goals, episodes, eval_seed)
-            runs.append({"seed": seed, "condition": condition, **trained, "after": after})
+
+            def session_and_eval(condition: str = condition, seed: int = seed, out: Path = out) -> dict:
+                trained = improve(condition, seed, steps, goals, out)
+                after = success(out / "checkpoint.pt", var, goals, episodes, eval_seed)
+                return {"seed": seed, "condition": condition, **trained, "after": after}
+
+            runs.append(kept(work / f"{condition}-{seed}.json", session_and_eval))
     lifts = {
         c: [r["after"]["success_rate"] - before["success_rate"] for r in runs if r["condition"] == c]
         for c in CONDITIONS

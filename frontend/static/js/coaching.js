@@ -9,6 +9,7 @@ import { element, robotPicker, say } from "./shell.js";
 const POLL_MS = 500;
 const ENDED = new Set(["done", "cancelled", "refused", "failed"]);
 const MIN_TALK_MS = 300; // shorter than the API's shortest clip
+const MAX_TALK_S = 9.5; // the API takes clips of at most 10 s: a longer hold is sent at this length
 
 export async function startCoaching(section) {
   const parts = {
@@ -60,7 +61,7 @@ class CoachingSession {
   constructor(parts, robots) {
     this.parts = parts;
     this.robots = robots;
-    this.recorder = new Recorder(() => {});
+    this.recorder = new Recorder(() => this.listening());
     this.session = null;
     this.saidFrom = null;
     this.answers = 0;
@@ -118,6 +119,16 @@ class CoachingSession {
     say(parts.message, status.message, kind);
   }
 
+  /** While Space is held: how much of the voice has been heard so far (from the microphone's samples). */
+  listening() {
+    if (this.saidFrom === null || !this.recorder.recording) return;
+    const samples = this.recorder.chunks.reduce((n, chunk) => n + chunk.length, 0);
+    const seconds = samples / this.recorder.context.sampleRate;
+    document.body.dataset.coachingListenedS = seconds.toFixed(2);
+    say(this.parts.heard, `Listening… ${seconds.toFixed(1)} s: let go when you have said “${this.session.command_name}”.`);
+    if (seconds >= MAX_TALK_S) this.done(); // what was said so far is sent; let go and hold again for more
+  }
+
   talk() {
     if (!this.running || this.saidFrom !== null) return;
     this.saidFrom = Date.now();
@@ -138,6 +149,7 @@ class CoachingSession {
       say(this.parts.heard, "That was too short to hear: hold Space while you say the whole command.", "warn");
       return;
     }
+    say(this.parts.heard, "Sending what you said…");
     const form = new FormData();
     form.append("file", new Blob([clip.wav], { type: "audio/wav" }), "coaching.wav");
     form.append("said_from_ms", String(saidFrom));
