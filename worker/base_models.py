@@ -15,10 +15,13 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from core.paths import REPO_ROOT, data_dir
 from core.rooms import HELD_OUT_ROOMS, RANDOMISED_ROOMS, TRAINING_ROOM, RoomRanges, world_room
+
+if TYPE_CHECKING:
+    import torch
 
 SHIPPED_DIR = REPO_ROOT / "worker" / "base_models"
 RECORD = "base.json"
@@ -125,8 +128,11 @@ class BaseRecipe:
         )
 
 
-def build_base(recipe: BaseRecipe, out_root: Path, progress: bool = True) -> dict[str, Any]:
+def build_base(
+    recipe: BaseRecipe, out_root: Path, progress: bool = True, device: "str | torch.device" = "cpu"
+) -> dict[str, Any]:
     """Collect views → train the VAR → train the policy with the intrinsic reward → evaluate → write.
+    `device`: where PPO's VAR and policy run (`learning.device.resolve_device`).
 
     Every stage resumes: a complete view set is reused, the VAR continues from its `last.pt` and the policy
     from its `checkpoint.pt` (in `<data dir>/base_build/<recipe name>/`), so running the same recipe again
@@ -162,7 +168,9 @@ def build_base(recipe: BaseRecipe, out_root: Path, progress: bool = True) -> dic
     )  # fmt: skip
     policy_dir = work / "policy"
     with clock("policy_train_s"):
-        summary = train_run(ppo, policy_dir, var_result.checkpoint, resume=True, progress=progress)
+        summary = train_run(
+            ppo, policy_dir, var_result.checkpoint, resume=True, progress=progress, device=device
+        )
     with clock("evaluate_s"):
         evaluations = evaluate_in_rooms(
             var_result.checkpoint, policy_dir / "checkpoint.pt", recipe.eval_rooms,

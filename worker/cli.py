@@ -70,6 +70,9 @@ def build_base(
     eval_episodes_per_intent: Annotated[int, typer.Option(min=1)] = 25,
     out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
     seed: Annotated[int, typer.Option()] = 0,
+    device: Annotated[
+        str | None, typer.Option(help="where PPO runs: auto, cpu or cuda (default: VARBOT_DEVICE, else auto)")
+    ] = None,
 ) -> None:
     """Train the base VAR + policy for one simulated world with the project's own trainers and record how.
 
@@ -77,9 +80,16 @@ def build_base(
     import json
     import signal
 
+    from backend.settings import get_settings
     from core.paths import data_dir
+    from learning.device import DeviceUnavailable, resolve_device
     from worker.base_models import BaseRecipe
     from worker.base_models import build_base as build
+
+    try:  # before anything starts: a missing GPU says so
+        on = resolve_device(device or get_settings().device)
+    except (DeviceUnavailable, ValueError) as refused:
+        raise typer.BadParameter(str(refused), param_hint="--device") from None
 
     recipe = BaseRecipe(
         world=world, sounds=sounds, front_end=front_end, room=room, views=views, image_size=image_size,
@@ -87,7 +97,7 @@ def build_base(
         eval_episodes_per_intent=eval_episodes_per_intent, seed=seed,
     )  # fmt: skip
     signal.signal(signal.SIGTERM, _exit_when_terminated)  # a stopped build still adds up its stage times
-    record = build(recipe, out or data_dir() / "base_models")
+    record = build(recipe, out or data_dir() / "base_models", device=on)
     typer.echo(json.dumps(record, indent=2))
 
 

@@ -77,3 +77,22 @@ def test_a_run_on_the_auto_device_learns_exactly_what_it_learns_on_the_cpu(tmp_p
     assert json.dumps(results["cpu"][0]) == json.dumps(results["auto"][0])
     cpu_weights, auto_weights = results["cpu"][1], results["auto"][1]
     assert all(torch.equal(cpu_weights[name], auto_weights[name]) for name in cpu_weights)
+
+
+def test_building_a_base_model_on_a_device_it_cannot_have_is_refused_before_it_starts(
+    tmp_path: Path,
+) -> None:
+    from typer.testing import CliRunner
+
+    from varbot.cli import app
+
+    def build(device: str):  # type: ignore[no-untyped-def]
+        command = ["models", "build-base", "--world", "kuka", "--device", device, "--out", str(tmp_path)]
+        return CliRunner().invoke(app, command, env={"COLUMNS": "300"})
+
+    unknown = build("gpu")
+    assert unknown.exit_code != 0 and "auto, cpu, cuda" in unknown.output, unknown.output
+    if not torch.cuda.is_available():
+        missing = build("cuda")
+        assert missing.exit_code != 0 and "no CUDA GPU" in missing.output, missing.output
+    assert not any(tmp_path.iterdir()), "nothing was built"
