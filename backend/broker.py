@@ -16,6 +16,7 @@ QUEUE_TRAINING = "training"
 TASK_CAPTURE_SNAPSHOTS = "varbot.capture_snapshots"
 TASK_TRY_COMMANDS = "varbot.try_commands"  # the robot's attempts at the household's commands
 TASK_COACH = "varbot.coach"  # a coaching-by-voice session (backend/services/coaching.py)
+COACHING_STAGE = "coaching"  # the `stage` of a coaching session's rollouts on the rollout channel
 RUN_TASKS: dict[RunKind, str] = {
     RunKind.FINETUNE: "varbot.finetune",
     RunKind.VAR_FINETUNE: "varbot.var_finetune",

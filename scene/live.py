@@ -23,7 +23,7 @@ logger = logging.getLogger(__name__)
 FOLLOW_TIMEOUT_S = 3.0  # no message for this long: the run is no longer followed
 RECONNECT_S = 2.0
 POLL_S = 0.25
-STAGE_NAMES = {"policy_improve": "policy stage", "coaching": "coaching by voice"}
+STAGE_NAMES = {"policy_improve": "policy stage", broker.COACHING_STAGE: "coaching by voice"}
 
 
 class RolloutMessageError(ValueError):

@@ -8,6 +8,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import viser
 
+from backend.broker import COACHING_STAGE
 from scene.household import HouseholdView
 from scene.live import LiveRollout
 from scene.sphere import SphereData
@@ -75,6 +76,12 @@ class Panel:
         self.rewards.clear()
 
 
+def _following_words(rollout: LiveRollout) -> str:
+    if rollout.stage == COACHING_STAGE:
+        return "Following a coaching session by voice live"
+    return f"Following training run {rollout.run_id} live ({rollout.stage_name})"
+
+
 def status_line(
     view: HouseholdView,
     has_policy: bool,
@@ -98,10 +105,7 @@ def status_line(
         sphere = f" · {views} views and {recordings} recordings on the sphere"
     run = ""
     if following is not None:
-        run = (
-            f"\n\nFollowing training run {following.run_id} live ({following.stage_name}), "
-            f"step {following.step}"
-        )
+        run = f"\n\n{_following_words(following)}, step {following.step}"
     elif view.running_run is not None:
         r = view.running_run
         run = f"\n\nTraining run {r.id}: {r.stage}, {round(r.progress * 100)}%"

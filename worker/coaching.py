@@ -19,6 +19,7 @@ from sqlalchemy import select
 
 from backend import models
 from backend.blobs import BlobStore
+from backend.broker import COACHING_STAGE
 from backend.db import get_session_factory
 from backend.deps import get_blob_store
 from backend.services import coaching, model_versions
@@ -32,7 +33,6 @@ from worker.live import RolloutPublisher
 logger = logging.getLogger(__name__)
 
 STATUS_EVERY_S = 0.5
-COACHING_STAGE = "coaching"  # the stage the scene names (scene/live.py)
 
 
 def coach(
