@@ -99,6 +99,7 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--parallel", type=int, default=2, help="runs trained at once, one thread each")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--output", default=str(OUTPUT), help="where the JSON goes")
     return parser.parse_args()
 
 
@@ -247,11 +248,11 @@ def main() -> None:
         "measured": time.strftime("%Y-%m-%d %H:%M"),
         **conditions.finish(),
     }
-    write_result(OUTPUT, result)
-    print_tables(result)
+    write_result(Path(args.output), result)
+    print_tables(result, args.output)
 
 
-def print_tables(result: dict) -> None:
+def print_tables(result: dict, output: str | Path) -> None:
     settings = result["settings"]
     console = Console(width=200)
     for sounds in dict.fromkeys(run["sounds"] for run in result["runs"].values()):
@@ -287,7 +288,7 @@ def print_tables(result: dict) -> None:
             f"{timings['cpu_ms_per_one_second_clip']:.1f} ms per 1 s clip (one thread)"
         )
     print(describe(result))
-    print(f"written: {OUTPUT}")
+    print(f"written: {output}")
 
 
 if __name__ == "__main__":

@@ -12,7 +12,8 @@ microphone there hears:
   before the command as a recording does;
 - a cheap microphone's band: a high-pass and a low-pass Butterworth filter at random corners.
 
-Every draw comes from `rng`, so a seed gives the same recording. Numpy, scipy and pyroomacoustics only.
+Every draw comes from `rng`, so a seed gives the same recording. The work is numpy, scipy and pyroomacoustics
+(learning.audio gives only the sample rate and the peak level).
 """
 
 import math
