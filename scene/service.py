@@ -112,6 +112,7 @@ class SceneService:
         finally:
             self.run_following.stop()
             endpoint.withdraw(self.household_id)
+            scene_requests.write_shown_robot(self.household_id, None)  # the next scene starts on the default
             self.server.stop()
             if self.world is not None:
                 self.world.close()
