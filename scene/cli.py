@@ -15,7 +15,10 @@ def run_scene(
         int | None, typer.Option(help="household id to show (default: the first one)")
     ] = None,
     robot: Annotated[
-        int | None, typer.Option(help="robot id (default: the household's first simulated one)")
+        int | None,
+        typer.Option(
+            help="robot id (default: the one whose model was made active last, else the first simulated)"
+        ),
     ] = None,
     port: Annotated[int, typer.Option(help="Viser's port (0: any free port, announced to the API)")] = 0,
     fps: Annotated[
