@@ -46,3 +46,28 @@ def test_runs_of_a_simulated_robot_go_to_the_training_queue(
     (message,) = queued_tasks(redis_client, "training")
     assert message["headers"]["id"] == run["task_id"]
     assert queued_tasks(redis_client, "robot") == []
+
+
+def test_a_real_arms_run_whose_worker_died_is_sent_back_to_the_robot_queue(
+    admin, redis_client, no_triplet_floor, db, sessions, monkeypatch
+) -> None:  # type: ignore[no-untyped-def]
+    from backend import models
+    from worker import lease
+    from worker.lease import requeue_orphaned_runs
+
+    monkeypatch.setattr(
+        lease, "get_session_factory", lambda: sessions
+    )  # the janitor reads the API's database
+
+    robot = _robot(admin, "kinova-real", arm_ip="10.0.0.2")
+    response = admin.client.post("/api/v1/runs", json={"robot_id": robot, "kind": "policy_improve"})
+    run_id = response.json()["id"]
+    redis_client.delete("robot")  # a worker took it from the queue ...
+    db.get(models.Run, run_id).status = "running"  # ... started it, and died: no lease is held
+    db.commit()
+    assert run_id in requeue_orphaned_runs()
+    (message,) = queued_tasks(redis_client, "robot")
+    assert message["headers"]["task"] == "varbot.policy_improve" and f"'run_id': {run_id}" in str(
+        message["headers"]["kwargsrepr"]
+    )
+    assert queued_tasks(redis_client, "training") == []
