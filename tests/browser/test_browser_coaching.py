@@ -36,6 +36,8 @@ def test_holding_space_while_the_robot_works_stores_an_is_label_for_the_view_sai
     page, stack: Stack, coached_robot: int, robot_worker: Service
 ) -> None:  # type: ignore[no-untyped-def]
     coaching_views = "source = 'coaching'"
+    zeros = "deleted_at IS NULL AND name = 'zero'"
+    recordings = stack.count("clips", zeros)  # other tests' households may have said "zero" too
     page.evaluate(f"localStorage.setItem('varbot.robot', '{coached_robot}')")
     open_page(page, f"{stack.url}/scene")
     panel = page.locator("#coaching")
@@ -66,8 +68,7 @@ def test_holding_space_while_the_robot_works_stores_an_is_label_for_the_view_sai
     assert stack.count("snapshots", coaching_views) == 1
     (snapshot,) = _coaching_snapshots(stack)
     assert stack.count("labels", f"snapshot_id = {snapshot} AND verdict = 'is'") == 1
-    recordings = stack.count("clips", "deleted_at IS NULL AND name = 'zero'")
-    assert recordings == 2, "the clip is a recording of zero"
+    assert stack.count("clips", zeros) == recordings + 1, "the clip is a recording of zero"
     screenshot(page, "scene-coaching")
 
     page.get_by_role("button", name="Stop coaching").click()

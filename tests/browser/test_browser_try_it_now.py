@@ -74,6 +74,15 @@ def follow_try(page, message_id: str) -> dict:  # type: ignore[no-untyped-def]
     return page.evaluate("window.__try")
 
 
+def assert_said_before_the_server_answered(measured: dict) -> None:
+    """The first words ("Starting…") do not wait for the network: they come before any state the server's
+    answer brings. How many milliseconds that is (11-50 on a quiet machine) is kept in TIMINGS, not asserted:
+    on a loaded machine the browser itself can be late."""
+    states = measured["states"]
+    later = [state["ms"] for name, state in states.items() if name != "sending"]
+    assert states["sending"]["ms"] <= min(later), measured
+
+
 def save_timings(name: str, measured: dict) -> None:
     ARTIFACTS.mkdir(parents=True, exist_ok=True)
     found = json.loads(TIMINGS.read_text()) if TIMINGS.exists() else {}
@@ -102,7 +111,7 @@ def test_on_the_record_page_the_robot_carries_out_what_was_just_said_and_nothing
 
     first = measured["states"]["sending"]
     assert first["text"].startswith("Starting…"), first
-    assert first["ms"] < 1000, f"the first words came {first['ms']:.0f} ms after letting go"
+    assert_said_before_the_server_answered(measured)
     final = page.locator("#try-message")
     assert final.get_attribute("data-try-state") == "done", final.inner_text()
     words = final.inner_text()
@@ -140,7 +149,7 @@ def test_on_the_scene_page_a_held_button_drives_the_robot_and_the_sphere_has_a_l
         measured = follow_try(page, "scene-try-message")
         save_timings(f"scene page, {attempt} try", measured)
         print(f"scene page, {attempt} try:", measured)
-        assert measured["states"]["sending"]["ms"] < 1000, measured
+        assert_said_before_the_server_answered(measured)
         assert message.get_attribute("data-try-state") == "done", message.inner_text()
         assert message.inner_text().startswith("Done with what you said")
     frame.get_by_text(re.compile(r"Done with what you said")).first.wait_for(timeout=30_000)

@@ -1,6 +1,6 @@
-"""`varbot up` starts the whole product (Redis, migrations, API, a training and a robot worker, the scene),
-keeps it alive when one part dies (the part comes back, the API answers meanwhile) and Ctrl-C stops all of
-it: no process left behind, Redis's data saved.
+"""`varbot up` starts the whole product (Redis, migrations, API, a training and a robot worker; no scene,
+which the API starts when a member opens one), keeps it alive when one part dies (the part comes back, the API
+answers meanwhile) and Ctrl-C stops all of it: no process left behind, Redis's data saved.
 
 The tests share one `varbot up` (starting it takes a while); the Ctrl-C test comes last and stops it."""
 
@@ -61,7 +61,7 @@ def signed_in(url: str) -> httpx.Client:
 def test_a_killed_worker_and_redis_are_restarted_while_the_api_and_the_rest_go_on(up: LaunchedUp) -> None:
     alice = signed_in(up.url)
     robot = alice.post("/robots", json={"name": "arm", "kind": "kuka-sim"}).json()["id"]
-    steady = {name: up.child(name).pid for name in ("varbot.cli api", "--queue robot", "varbot.cli scene")}
+    steady = {name: up.child(name).pid for name in ("varbot.cli api", "--queue robot")}
     training = up.child("--queue training")
 
     training.kill()
@@ -117,8 +117,9 @@ def test_ctrl_c_stops_every_child_and_saves_redis(up: LaunchedUp) -> None:
     assert health.status_code == 200 and health.json()["broker"] == "ok"
     assert "admin create" in up.output()
     children = up.children()
-    for part in ("redis-server", "varbot.cli api", "--queue training", "--queue robot", "varbot.cli scene"):
+    for part in ("redis-server", "varbot.cli api", "--queue training", "--queue robot"):
         assert up.child(part)
+    assert not [c for c in children if "scene" in c.cmdline()], "no scene runs until a member opens one"
 
     assert up.interrupt(timeout=90) == 0, up.output()
     wait_until(lambda: not any(alive(c) for c in children), 10, "every child of `varbot up` to exit")
