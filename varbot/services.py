@@ -65,6 +65,24 @@ def stack_environment(data_dir: Path, redis_socket: Path, **settings: str) -> di
     }
 
 
+THROWAWAY_STACK_SETTINGS = {
+    "VARBOT_ENVIRONMENT": "test",
+    # the cheapest password hashing argon2 allows: a test stack signs people in many times a minute
+    "VARBOT_PASSWORD_HASH_TIME_COST": "1",
+    "VARBOT_PASSWORD_HASH_MEMORY_KIB": "1024",
+}
+
+
+def throwaway_stack_environment(
+    data_dir: Path, redis_socket: Path, secret_key: str, **settings: str
+) -> dict[str, str]:
+    """`stack_environment` for a stack that lives only as long as a test session: the test environment, its
+    own secret key and cheap password hashing, then `settings`."""
+    return stack_environment(
+        data_dir, redis_socket, **THROWAWAY_STACK_SETTINGS, VARBOT_SECRET_KEY=secret_key, **settings
+    )
+
+
 def varbot_argv(*args: str) -> list[str]:
     return [sys.executable, "-m", "varbot.cli", *args]
 

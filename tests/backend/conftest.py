@@ -14,14 +14,14 @@ import pytest
 from apitest_helpers import PASSWORD, Person
 
 from varbot import services
-from varbot.services import create_postgres_database, postgres_cluster, redis_service
+from varbot.services import (
+    THROWAWAY_STACK_SETTINGS,
+    create_postgres_database,
+    postgres_cluster,
+    redis_service,
+)
 
-_SESSION_ENV = {
-    "VARBOT_ENVIRONMENT": "test",
-    "VARBOT_SECRET_KEY": "test-secret-key-not-for-production",
-    "VARBOT_PASSWORD_HASH_TIME_COST": "1",
-    "VARBOT_PASSWORD_HASH_MEMORY_KIB": "1024",
-}
+_SESSION_ENV = {**THROWAWAY_STACK_SETTINGS, "VARBOT_SECRET_KEY": "test-secret-key-not-for-production"}
 
 
 def clear_backend_caches() -> None:

@@ -27,7 +27,7 @@ from varbot.services import (
     api_url,
     free_port,
     redis_service,
-    stack_environment,
+    throwaway_stack_environment,
     varbot_argv,
 )
 
@@ -114,13 +114,10 @@ def stack() -> Iterator[Stack]:
     data_dir = Path(tempfile.mkdtemp(prefix="vb-browser-"))
     sock = data_dir / "redis.sock"
     port = free_port()
-    env = stack_environment(
+    env = throwaway_stack_environment(
         data_dir,
         sock,
-        VARBOT_ENVIRONMENT="test",
-        VARBOT_SECRET_KEY="browser-test-secret-key-not-for-production",
-        VARBOT_PASSWORD_HASH_TIME_COST="1",
-        VARBOT_PASSWORD_HASH_MEMORY_KIB="1024",
+        "browser-test-secret-key-not-for-production",
         VARBOT_ADMIN_PASSWORD=PASSWORD,
         VARBOT_SSE_POLL_SECONDS="0.5",
     )

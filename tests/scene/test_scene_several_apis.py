@@ -19,7 +19,14 @@ import soundfile
 from scene_helpers import eventually
 
 from varbot import services
-from varbot.services import Service, api_url, free_port, redis_service, stack_environment, varbot_argv
+from varbot.services import (
+    Service,
+    api_url,
+    free_port,
+    redis_service,
+    throwaway_stack_environment,
+    varbot_argv,
+)
 
 PASSWORD = "several apis test password"
 
@@ -50,13 +57,10 @@ def api_process(name: str, port: int) -> Service:
 def two_apis() -> Iterator[TwoApis]:
     data_dir = Path(tempfile.mkdtemp(prefix="vb-2api-"))
     sock = data_dir / "redis.sock"
-    env = stack_environment(
+    env = throwaway_stack_environment(
         data_dir,
         sock,
-        VARBOT_ENVIRONMENT="test",
-        VARBOT_SECRET_KEY="several-apis-test-secret-key-not-for-production",
-        VARBOT_PASSWORD_HASH_TIME_COST="1",
-        VARBOT_PASSWORD_HASH_MEMORY_KIB="1024",
+        "several-apis-test-secret-key-not-for-production",
         VARBOT_ADMIN_PASSWORD=PASSWORD,
         VARBOT_SCENE_IDLE_STOP_S="600",
     )

@@ -23,7 +23,7 @@ from varbot.services import (
     api_url,
     free_port,
     redis_service,
-    stack_environment,
+    throwaway_stack_environment,
     worker_service,
 )
 from varbot.services import wait_until as wait_until  # the test modules import it (and TINY) from here
@@ -75,13 +75,10 @@ def stack() -> Iterator[Stack]:
     root = Path(tempfile.mkdtemp(prefix="vbw-"))
     sock = root / "redis.sock"
     port = free_port()
-    env = stack_environment(
+    env = throwaway_stack_environment(
         root / "data",
         sock,
-        VARBOT_ENVIRONMENT="test",
-        VARBOT_SECRET_KEY="worker-tests-secret-key",
-        VARBOT_PASSWORD_HASH_TIME_COST="1",
-        VARBOT_PASSWORD_HASH_MEMORY_KIB="1024",
+        "worker-tests-secret-key",
         VARBOT_BASE_MODELS_DIR=str(root / "base_models"),
         VARBOT_RUN_LEASE_S="3",
         VARBOT_RUN_JANITOR_INTERVAL_S="1",
