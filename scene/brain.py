@@ -54,7 +54,7 @@ class Brain:
         features, keep = [], []
         for index, data in enumerate(wavs):
             try:
-                features.append(features_from_bytes(data))
+                features.append(features_from_bytes(data, front_end=self.var.front_end))
                 keep.append(index)
             except AudioError:
                 continue

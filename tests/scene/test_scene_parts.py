@@ -59,7 +59,7 @@ def test_snapshots_join_the_command_whose_clips_are_closest() -> None:
     assert nearest_commands(points, {}, view) == [None, None]
 
 
-def _checkpoints() -> tuple[bytes, bytes]:
+def _checkpoints(front_end: str = "mfcc") -> tuple[bytes, bytes]:
     from learning.rl.policy import Policy, PolicyConfig
     from learning.rl.ppo import CHECKPOINT_KIND
     from learning.var.checkpoint import save_var
@@ -67,7 +67,7 @@ def _checkpoints() -> tuple[bytes, bytes]:
 
     torch.manual_seed(0)
     policy_buffer = io.BytesIO()
-    model = VAR(VARConfig(image_size=32))
+    model = VAR(VARConfig(image_size=32, front_end=front_end))
     with tempfile.TemporaryDirectory() as folder:
         var_bytes = save_var(model, Path(folder) / "var.pt").read_bytes()
     policy = Policy(PolicyConfig(image_size=32, state_dim=2))
@@ -112,6 +112,22 @@ def test_unreadable_clips_are_left_off_the_sphere() -> None:
     assert np.isclose(np.linalg.norm(vectors[0]), 1.0, atol=1e-4)
     with pytest.raises(RuntimeError, match="no policy episode"):
         brain.act(np.zeros((32, 32, 3), np.uint8), vectors[0], np.zeros(2, np.float32))
+
+
+def test_a_clip_reaches_the_sphere_through_the_front_end_the_var_was_trained_with() -> None:
+    from learning.audio import features_from_bytes
+    from scene.brain import Brain
+
+    var_bytes, _ = _checkpoints(front_end="speech-embedding")
+    brain = Brain(var_bytes, None)
+    t = np.arange(16000) / 16000
+    buffer = io.BytesIO()
+    soundfile.write(buffer, 0.3 * np.sin(2 * np.pi * 300 * t), 16000, format="WAV", subtype="PCM_16")
+    [vector] = brain.embed_clip_bytes([buffer.getvalue()])
+    features = features_from_bytes(buffer.getvalue(), front_end="speech-embedding")
+    with torch.inference_mode():
+        expected = brain.var.encode_sound(torch.from_numpy(features[None])).float().numpy()[0]
+    assert vector is not None and np.allclose(vector, expected, atol=1e-5)
 
 
 def test_try_a_command_offers_each_command_once_in_the_households_words() -> None:
