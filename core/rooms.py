@@ -293,9 +293,12 @@ RANDOMISED_ROOMS = "randomised"
 ROOM_NAMES = (TRAINING_ROOM, RANDOMISED_ROOMS, *ROOM_PRESETS)
 
 
-def world_room(name: str) -> "DomainShift | RoomRanges | None":
+def world_room(name: str | Mapping[str, Any]) -> "DomainShift | RoomRanges | None":
     """What a world is given for a room name: None for "training" (the world's own look), the training
-    `RoomRanges` for "randomised" (a new room every reset), or a preset's room."""
+    `RoomRanges` for "randomised" (a new room every reset), or a preset's room. A mapping of DomainShift
+    fields (`room_setting`: a household robot's own room) is that room."""
+    if isinstance(name, Mapping):
+        return room_of({"domain": name})
     if name == TRAINING_ROOM:
         return None
     if name == RANDOMISED_ROOMS:
@@ -303,3 +306,14 @@ def world_room(name: str) -> "DomainShift | RoomRanges | None":
     if name in ROOM_PRESETS:
         return ROOM_PRESETS[name]()
     raise ValueError(f"unknown room {name!r}: choose one of {', '.join(ROOM_NAMES)}")
+
+
+def room_setting(room: DomainShift | None) -> str | dict[str, Any]:
+    """A room as a config value that `world_room` reads back: "training" for None, else its DomainShift
+    fields as JSON gives them back (lists, not tuples), so a config read from disk compares equal to it."""
+    if room is None:
+        return TRAINING_ROOM
+    return {
+        name: list(value) if isinstance(value, tuple) else value
+        for name, value in dataclasses.asdict(room).items()
+    }

@@ -10,11 +10,15 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from worker.household import HouseholdData
+
+if TYPE_CHECKING:
+    from core.rooms import DomainShift
+    from learning.rl.ppo import PPOConfig
 
 
 @dataclass
@@ -52,6 +56,32 @@ def goal_clip_ids(data: HouseholdData, num_intents: int = 4) -> np.ndarray:
     return data.clip_ids[rows]
 
 
+def improvement_config(
+    base: "PPOConfig", steps: int, seed: int, room: "DomainShift | None", robot_env_context: str | None
+) -> "PPOConfig":
+    """The parent's PPO settings, continued for `steps` in the household's room (or on its real robot) with
+    the household's clips as goals, at a third of the parent's learning rate."""
+    from core.rooms import room_setting
+    from learning.rl.env_groups import IN_PROCESS
+    from learning.rl.ppo import PPOConfig
+
+    if robot_env_context is not None:
+        base = dataclasses.replace(
+            base, num_envs=1, env_groups=1, num_minibatches=1, env_context=robot_env_context
+        )
+    elif base.env_context.startswith(IN_PROCESS):  # the parent improved on a real robot: back to simulation
+        base = dataclasses.replace(base, env_context=PPOConfig.env_context)
+    return dataclasses.replace(
+        base,
+        total_steps=max(int(steps), base.batch_size),  # at least one PPO update
+        learning_rate=base.learning_rate / 3,
+        goal_split="household",
+        seed=seed,
+        current_sound=False,
+        room=room_setting(room),
+    )
+
+
 def improve_policy(
     data: HouseholdData,
     policy_checkpoint: Path,
@@ -62,15 +92,16 @@ def improve_policy(
     on_update: Callable[[float, dict[str, Any]], bool],
     on_rollout_step: Callable[[Any], None] | None = None,
     robot_env_context: str | None = None,
+    room: "DomainShift | None" = None,
 ) -> PolicyImproveResult:
     """PPO from `policy_checkpoint`; `on_update(fraction, point)` after each update (True: stop),
     `on_rollout_step` after each step of env 0 (`learning.rl.ppo.RolloutStep`: the live view). With
     `robot_env_context` (`learning.rl.env_groups.in_process_env`: a real robot), PPO runs on that one
-    environment in this process instead of simulated worlds. The VAR and the policy run where the worker's
-    VARBOT_DEVICE says (`learning.device.resolve_device`)."""
+    environment in this process instead of simulated worlds; simulated worlds are in `room`, the robot's own
+    (None: the training room), whatever rooms the parent was trained in. The VAR and the policy run where the
+    worker's VARBOT_DEVICE says (`learning.device.resolve_device`)."""
     from backend.settings import get_settings
     from learning.device import resolve_device
-    from learning.rl.env_groups import IN_PROCESS
     from learning.rl.ppo import PPOConfig, read_policy_checkpoint
     from learning.rl.run import train_run
 
@@ -78,21 +109,7 @@ def improve_policy(
     base = PPOConfig.from_dict(read_policy_checkpoint(policy_checkpoint)["config"])
     if base.goal_encoder != "var":
         raise ValueError(f"{policy_checkpoint} was not trained with the VAR; it cannot improve itself")
-    if robot_env_context is not None:
-        base = dataclasses.replace(
-            base, num_envs=1, env_groups=1, num_minibatches=1, env_context=robot_env_context
-        )
-    elif base.env_context.startswith(IN_PROCESS):  # the parent improved on a real robot: back to simulation
-        base = dataclasses.replace(base, env_context=PPOConfig.env_context)
-    steps = max(int(steps), base.batch_size)  # at least one PPO update
-    config = dataclasses.replace(
-        base,
-        total_steps=steps,
-        learning_rate=base.learning_rate / 3,
-        goal_split="household",
-        seed=seed,
-        current_sound=False,
-    )
+    config = improvement_config(base, steps, seed, room, robot_env_context)
     updates_total = config.num_updates
 
     def hook(record: dict[str, Any]) -> bool:

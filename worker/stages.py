@@ -73,6 +73,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
             on_update,
             live,
             on_arm,
+            context.room,
         )
     compact = context.folder / "policy" / "final.pt"
     _compact_policy(result.checkpoint, compact)

@@ -82,7 +82,8 @@ class PPOConfig:
     policy_image_size: int = PolicyConfig.policy_image_size
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
     max_episode_steps: int | None = None  # None: the world's own T (100)
-    room: str = "training"  # core.rooms.world_room: "training", "randomised" (a room per episode) or a preset
+    # core.rooms.world_room: "training", "randomised" (a room per episode), a preset, or DomainShift fields
+    room: str | dict[str, Any] = "training"
     # PPO
     total_steps: int = 1_000_000
     num_envs: int = 8

@@ -1,0 +1,30 @@
+"""Policy self-improvement happens where the household's robot is: in its own room, whatever rooms the base
+model was trained in."""
+
+import json
+from dataclasses import asdict
+
+from core.rooms import ROOM_PRESETS, DomainShift, room_setting, world_room
+from learning.rl.ppo import PPOConfig
+from worker.policy_stage import improvement_config
+
+
+def test_a_robot_in_a_held_out_room_improves_its_policy_in_that_room_not_in_the_base_models_rooms() -> None:
+    base = PPOConfig(room="randomised", learning_rate=3e-4)
+    room = ROOM_PRESETS["lamplit_room"]()
+    config = improvement_config(base, steps=1600, seed=3, room=room, robot_env_context=None)
+    assert world_room(config.room) == room
+    assert (config.total_steps, config.seed, config.goal_split) == (1600, 3, "household")
+    assert config.learning_rate == base.learning_rate / 3
+
+
+def test_a_robot_in_the_training_room_improves_there() -> None:
+    config = improvement_config(PPOConfig(room="randomised"), 800, 0, None, None)
+    assert config.room == "training" and world_room(config.room) is None
+
+
+def test_a_robots_own_room_survives_the_run_folder_so_a_resumed_run_has_the_same_settings() -> None:
+    room = DomainShift(object_rgb=(0.2, 0.3, 0.9), light_direction=(0.3, -0.2, 0.9), floor_texture="noise")
+    config = improvement_config(PPOConfig(), 800, 0, room, None)
+    assert PPOConfig.from_dict(json.loads(json.dumps(asdict(config)))) == config
+    assert world_room(room_setting(room)) == room
