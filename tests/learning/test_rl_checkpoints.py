@@ -19,6 +19,8 @@ from learning.rl.policy import Policy, PolicyConfig
 from learning.rl.ppo import PPOConfig
 
 SHIPPED_KUKA_POLICY = REPO_ROOT / "worker" / "base_models" / "kuka" / "policy.pt"
+# the Kuka policy shipped until 2026-12-02, written before checkpoints had a format version
+UNVERSIONED_KUKA_POLICY = Path(__file__).parent / "checkpoints" / "unversioned_kuka_policy.pt"
 
 
 def fixed_inputs(image_size: int, batch: int = 4) -> dict[str, torch.Tensor]:
@@ -89,9 +91,9 @@ def test_an_unversioned_checkpoint_from_before_the_newer_options_loads_as_it_was
     assert upgraded["stats"]["intents"] == [-1, -1]
 
 
-def test_the_shipped_kuka_base_model_loads_and_acts_as_before_checkpoints_had_versions() -> None:
-    policy, payload = load_policy(SHIPPED_KUKA_POLICY)
-    assert "format_version" not in torch.load(SHIPPED_KUKA_POLICY, map_location="cpu", weights_only=False)
+def test_the_old_shipped_kuka_policy_loads_and_acts_as_before_checkpoints_had_versions() -> None:
+    policy, payload = load_policy(UNVERSIONED_KUKA_POLICY)
+    assert "format_version" not in torch.load(UNVERSIONED_KUKA_POLICY, map_location="cpu", weights_only=False)
     assert (policy.config.goal_fusion, policy.config.bounded_mean) == ("image", True)
     mean, value = act(policy, fixed_inputs(policy.config.policy_image_size))
     # what the code before this format version computed for the same inputs (`learning/rl/ppo.py` @ 062d7cb)
