@@ -44,14 +44,17 @@ PRESETS: dict[str, dict[str, Any]] = {
         seed=0,
     ),
 }
-# What a fine-tune's parts cost on this machine (2 CPU cores, about 1,000 household triplets), from the
-# standard preset's run by bench/household.py (bench/results/household.json, stages_s): 29.2 s for 20 VAR
-# epochs, 194.29 s for 20,000 policy steps, 157.83 s for 100 test episodes of each model. The thorough
-# preset's run (bench/results/household_thorough.json) took 21.8 min where these predict 22.4 min.
-SECONDS_PER_VAR_EPOCH = 29.2 / 20
-SECONDS_PER_POLICY_STEP = 194.29 / 20_000
-SECONDS_PER_TEST_EPISODE = 157.83 / 100
-BUDGET_MEASURED_BY = "bench/results/household.json"
+# What a fine-tune's parts cost on this machine (2 CPU cores, about 4,000 household triplets from about 760
+# answers, the speech-embedding Kuka base), from the standard preset's run by bench/household.py
+# (bench/results/household_4000_triplets.json, stages_s, load 0.8 -> 2.8): 55.51 s for 20 VAR epochs,
+# 67.96 s for 20,000 policy steps, 61.96 s for 100 test episodes of each model. Each stage
+# also starts workers and loads models once, which these per-unit costs spread over its units, so they
+# over-predict a longer run: the thorough preset's run (bench/results/household_thorough.json) took
+# 8.8 min where they predict 9.6 min.
+SECONDS_PER_VAR_EPOCH = 55.51 / 20
+SECONDS_PER_POLICY_STEP = 67.96 / 20_000
+SECONDS_PER_TEST_EPISODE = 61.96 / 100
+BUDGET_MEASURED_BY = "bench/results/household_4000_triplets.json"
 NEEDS_TRIPLETS = (models.RunKind.FINETUNE, models.RunKind.VAR_FINETUNE)
 UNFINISHED = (models.RunStatus.QUEUED, models.RunStatus.RUNNING)
 
@@ -65,7 +68,7 @@ def resolve_params(preset: str, overrides: dict[str, Any]) -> RunParams:
 
 
 def minutes_here(params: RunParams) -> float:
-    """About how long a fine-tune with `params` takes on this machine with about 1,000 triplets: VAR
+    """About how long a fine-tune with `params` takes on this machine with about 4,000 triplets: VAR
     epochs, policy steps and test episodes at the costs measured above."""
     seconds = (
         params.var_epochs * SECONDS_PER_VAR_EPOCH

@@ -80,7 +80,7 @@ def test_presets_are_published(member) -> None:
     assert presets["quick"]["policy_steps"] < presets["thorough"]["policy_steps"]
     minutes = [presets[name]["minutes_here"] for name in ("quick", "standard", "thorough")]
     assert 0 < minutes[0] < minutes[1] < minutes[2], "each preset states its budget in minutes"
-    assert presets["standard"]["measured_by"] == "bench/results/household.json"
+    assert presets["standard"]["measured_by"] == "bench/results/household_4000_triplets.json"
 
 
 def test_fine_tuning_is_refused_without_enough_triplets(admin, robot) -> None:
