@@ -71,12 +71,12 @@ def test_recording_with_the_microphone_keeps_a_clip_that_plays(page, stack: Stac
     )
     assert 1.2 < preview_seconds < 3.0
     page.get_by_role("button", name="Keep it").click()
-    page.get_by_text(re.compile(r"Kept: recording \d+")).wait_for()
+    kept = page.get_by_text(re.compile(r"Kept: recording \d+"))
+    kept.wait_for()
     assert stack.count("clips") == before + 1
-    # the list holds every recording of the household (other tests add theirs): find the one just kept
-    item = page.locator("#clips li", has_text="zero").last
-    item.wait_for()
-    audio = item.locator("audio").element_handle()
+    # "Kept" is said once the list shows the recording: play the one just kept
+    clip_id = re.search(r"Kept: recording (\d+)", kept.inner_text()).group(1)  # type: ignore[union-attr]
+    audio = page.locator(f"#clips li[data-clip-id='{clip_id}'] audio").element_handle(timeout=1000)
     audio.evaluate("a => { a.play(); }")
     page.wait_for_function("a => a.currentTime > 0.2 || a.error !== null", arg=audio)
     assert audio.evaluate("a => a.error && a.error.code") is None

@@ -98,18 +98,26 @@ async function keep(blob, filename) {
   $("upload").hidden = false;
   $("upload-progress").value = 0;
   $("keep").disabled = true;
+  let clip;
   try {
-    const clip = await uploadWithProgress("/clips", form, (fraction) => ($("upload-progress").value = fraction));
-    const kept = clip.name ? `Kept: recording ${clip.id} of “${clip.name}” (${clip.duration_s.toFixed(1)} s).` : `Kept: recording ${clip.id} (${clip.duration_s.toFixed(1)} s). It has no command name, so it counts as a command of its own.`;
-    say(message, kept, clip.name ? "ok" : "warn");
-    showReview(false);
-    await Promise.all([listClips(), listCommands(clip.name)]);
+    clip = await uploadWithProgress("/clips", form, (fraction) => ($("upload-progress").value = fraction));
   } catch (error) {
     say(message, `The server did not accept this recording: ${error.message}`, "error");
+    return;
   } finally {
     $("upload").hidden = true;
     $("keep").disabled = false;
   }
+  const kept = clip.name ? `Kept: recording ${clip.id} of “${clip.name}” (${clip.duration_s.toFixed(1)} s).` : `Kept: recording ${clip.id} (${clip.duration_s.toFixed(1)} s). It has no command name, so it counts as a command of its own.`;
+  showReview(false);
+  try {
+    // "Kept" is said once the lists show the new recording, so what the page says is what it shows
+    await Promise.all([listClips(), listCommands(clip.name)]);
+  } catch (error) {
+    say(message, `${kept} The list of recordings could not be refreshed (${error.message}): reload the page to see it.`, "warn");
+    return;
+  }
+  say(message, kept, clip.name ? "ok" : "warn");
 }
 
 async function listClips() {
