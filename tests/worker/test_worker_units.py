@@ -198,6 +198,24 @@ def test_a_verdict_is_explained_by_the_measure_that_gave_it_not_by_changes_withi
     assert worse.startswith("Worse: it now succeeds in 8 of 40 tries, was 20 of 40;"), worse
 
 
+def test_a_gain_in_answers_does_not_promote_a_robot_whose_success_slipped_beyond_one_standard_error() -> None:
+    before = _score(0.90, 0.25, triplets=200, episodes=100)
+    slipped = decide(_score(0.99, 0.18, triplets=200, episodes=100), before)
+    assert "(better" in slipped.reasons[0] and "(no measurable change)" in slipped.reasons[1], slipped.reasons
+    assert slipped.verdict == Verdict.NO_CHANGE and not slipped.promote, "25 -> 18 in 100 tries is -1.2 SE"
+    assert "fell by more than one standard error" in slipped.reasons[2]
+    assert slipped.summary.startswith(
+        "No measurable change: it now matches 198 of 200 held-out answers, was 180 of 200, but it now "
+        "succeeds in 18 of 100 tries, was 25 of 100; kept the old version"
+    ), slipped.summary
+    held = decide(
+        _score(0.99, 0.20, triplets=200, episodes=100), _score(0.90, 0.23, triplets=200, episodes=100)
+    )
+    assert held.verdict == Verdict.BETTER and held.promote, (
+        "3 fewer in 100 tries is within one standard error"
+    )
+
+
 def test_replay_joins_views_of_the_training_room_paired_by_what_is_in_view_and_never_held_out() -> None:
     from learning.sounds import SoundCorpus
     from worker.replay import joined_with_replay
