@@ -60,7 +60,8 @@ def improvement_config(
     base: "PPOConfig", steps: int, seed: int, room: "DomainShift | None", robot_env_context: str | None
 ) -> "PPOConfig":
     """The parent's PPO settings, continued for `steps` in the household's room (or on its real robot) with
-    the household's clips as goals, at a third of the parent's learning rate."""
+    the household's clips as goals, at a third of the base model's learning rate: a parent that is itself a
+    household's fine-tune already runs at that rate, so a second and third fine-tune do not slow down."""
     from core.rooms import room_setting
     from learning.rl.env_groups import IN_PROCESS
     from learning.rl.ppo import PPOConfig
@@ -74,7 +75,7 @@ def improvement_config(
     return dataclasses.replace(
         base,
         total_steps=max(int(steps), base.batch_size),  # at least one PPO update
-        learning_rate=base.learning_rate / 3,
+        learning_rate=base.learning_rate if base.goal_split == "household" else base.learning_rate / 3,
         goal_split="household",
         seed=seed,
         current_sound=False,

@@ -18,6 +18,14 @@ def test_a_robot_in_a_held_out_room_improves_its_policy_in_that_room_not_in_the_
     assert config.learning_rate == base.learning_rate / 3
 
 
+def test_every_fine_tune_of_a_household_runs_at_a_third_of_the_base_models_learning_rate() -> None:
+    base = PPOConfig(learning_rate=3e-4)
+    first = improvement_config(base, 800, 0, None, None)
+    second = improvement_config(first, 800, 1, None, None)
+    third = improvement_config(second, 800, 2, None, None)
+    assert first.learning_rate == second.learning_rate == third.learning_rate == base.learning_rate / 3
+
+
 def test_a_robot_in_the_training_room_improves_there() -> None:
     config = improvement_config(PPOConfig(room="randomised"), 800, 0, None, None)
     assert config.room == "training" and world_room(config.room) is None
