@@ -106,3 +106,9 @@ def test_show_names_each_worlds_base_model_with_its_rooms_and_front_end(
     built = json.loads((SHIPPED / "base.json").read_text())["built_at"]
     shown = f"kuka: {SHIPPED} ({built}; trained in rooms: randomised; front end: speech-embedding)"
     assert shown in result.output
+    turtlebot = SHIPPED_DIR / "turtlebot"
+    built = json.loads((turtlebot / "base.json").read_text())["built_at"]
+    assert f"turtlebot: {turtlebot} ({built}; trained in rooms: randomised; front end: speech-embedding)" in (
+        result.output
+    )
+    assert "kinova: no base model for the kinova world" in result.output
