@@ -111,7 +111,7 @@ def test_attempts_become_snapshots_answers_become_labels_and_a_fine_tune_with_re
 def test_what_cannot_be_attempted_or_replayed_says_why_and_what_to_do(
     stack: Stack, household: Household, base_model, training_worker
 ) -> None:  # type: ignore[no-untyped-def]
-    no_model = household.client.post("/api/v1/robots", json={"name": "bare", "kind": "turtlebot-sim"}).json()
+    no_model = household.client.post("/api/v1/robots", json={"name": "bare", "kind": "kinova-sim"}).json()
     refused = _attempts(household, no_model["id"], count=2)["status"]
     assert refused["state"] == "refused" and "train or pick a base model first" in refused["message"]
     assert not household.snapshots(no_model["id"]), "nothing was stored"
