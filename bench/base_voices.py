@@ -18,7 +18,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-import numpy as np
 from conditions import Conditions, describe
 from result_files import relative_path, write_result
 from rich.console import Console
@@ -38,13 +37,10 @@ def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
 
 
 def score_tier(var, train, clips, names: list[str]) -> dict:  # type: ignore[no-untyped-def]
-    from learning.var.evaluate import command_similarities
+    from learning.var.evaluate import command_margins, command_similarities
 
     similarity = command_similarities(var, train, clips, len(names))
     read_as = similarity.argmax(axis=1)
-    own = similarity[np.arange(len(clips.intent)), clips.intent]
-    others = similarity.copy()
-    others[np.arange(len(clips.intent)), clips.intent] = -np.inf
     misread = Counter(
         f"{names[said]} read as {names[heard]}"
         for said, heard in zip(clips.intent.tolist(), read_as.tolist(), strict=True)
@@ -58,7 +54,7 @@ def score_tier(var, train, clips, names: list[str]) -> dict:  # type: ignore[no-
             for k in range(len(names))
             if (clips.intent == k).any()
         },
-        "mean_margin": round(float((own - others.max(axis=1)).mean()), 4),
+        "mean_margin": round(float(command_margins(similarity, clips.intent).mean()), 4),
         "misread": dict(misread.most_common()),
     }
 

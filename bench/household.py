@@ -451,6 +451,7 @@ def run_and_wait(
 
 
 def room_settings(room: str) -> dict:
+    """A robot's settings that put it in `room` (a `core.rooms` preset name; the training room is none)."""
     return {} if room == TRAINING_ROOM else {"domain": room}
 
 
@@ -461,7 +462,7 @@ def move_robot(admin: httpx.Client, robot_id: int, room: str) -> None:
 
 
 def score_in_room(
-    args: argparse.Namespace, stack: "Stack", admin: httpx.Client, robot_id: int, room: str
+    args: argparse.Namespace, stack: Stack, admin: httpx.Client, robot_id: int, room: str
 ) -> dict:
     """The robot's newest model scored in `room` by an evaluate run of the product (the same episode list as
     the fine-tune's evaluation: same preset and seed), the robot moved there for the run and back after.
@@ -539,9 +540,9 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
     family = create_family(stack, args.household, list(about["speakers"]))  # type: ignore[arg-type]
     intent_of_clip = upload(family, recordings, names)
     members = list(family.values())
-    settings = {} if args.room == TRAINING_ROOM else {"domain": args.room}
     response = members[0].post(
-        "/api/v1/robots", json={"name": "kitchen arm", "kind": "kuka-sim", "settings": settings}
+        "/api/v1/robots",
+        json={"name": "kitchen arm", "kind": "kuka-sim", "settings": room_settings(args.room)},
     )
     if response.status_code != 201:
         raise BenchError(f"the robot was refused: {response.text}")

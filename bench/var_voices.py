@@ -113,16 +113,14 @@ def score(variant: str, corpus, kept: list[str], held_out: list[str], args: argp
     import numpy as np
 
     from learning.var.checkpoint import load_var
-    from learning.var.evaluate import command_similarities
+    from learning.var.evaluate import command_margins, command_similarities
 
     train = corpus.subset("train")
     known, unknown = train.by_speakers(kept), train.by_speakers(held_out)
     var = load_var(run_dir(variant, args) / "final.pt")
     similarity = command_similarities(var, known, unknown, len(corpus.intent_names))
     hits = similarity.argmax(axis=1) == unknown.intent
-    own = similarity[np.arange(len(hits)), unknown.intent]
-    others = np.where(np.eye(similarity.shape[1], dtype=bool)[unknown.intent], -np.inf, similarity)
-    margin = own - others.max(axis=1)
+    margin = command_margins(similarity, unknown.intent)
     per_speaker = {s: float(hits[unknown.speaker == s].mean()) for s in held_out}
     return {
         "held_out_accuracy": float(hits.mean()),

@@ -51,6 +51,13 @@ def command_similarities(var: VAR, known: Any, unknown: Any, num_intents: int) -
     return embed_sounds(var, unknown.features) @ centroids.T  # the VAR's embeddings are unit vectors
 
 
+def command_margins(similarity: np.ndarray, intent: np.ndarray) -> np.ndarray:
+    """Per clip: cosine to its own command minus the best other command's (`command_similarities` rows)."""
+    own = similarity[np.arange(len(intent)), intent]
+    others = np.where(np.eye(similarity.shape[1], dtype=bool)[intent], -np.inf, similarity)
+    return own - others.max(axis=1)
+
+
 def nearest_command_accuracy(
     var: VAR, known: Any, unknown: Any, num_intents: int
 ) -> tuple[float, np.ndarray]:
