@@ -270,6 +270,13 @@ class RunParams(BaseModel):
         description="share of the VAR fine-tune's training triplets replayed from the simulated training "
         "room with the base corpus's clips, so that it keeps what it knew (0: none)",
     )
+    policy_replay_share: float = Field(
+        default=0.25,
+        ge=0.0,
+        le=0.5,
+        description="share of the policy self-improvement's simulated environments that keep practising in "
+        "the base model's rooms instead of the robot's own, so that it keeps what it knew there (0: none)",
+    )
 
 
 class PresetPublic(RunParams):

@@ -57,16 +57,29 @@ def goal_clip_ids(data: HouseholdData, num_intents: int = 4) -> np.ndarray:
 
 
 def improvement_config(
-    base: "PPOConfig", steps: int, seed: int, room: "DomainShift | None", robot_env_context: str | None
+    base: "PPOConfig",
+    steps: int,
+    seed: int,
+    room: "DomainShift | None",
+    robot_env_context: str | None,
+    replay_share: float = 0.0,
 ) -> "PPOConfig":
     """The parent's PPO settings, continued for `steps` in the household's room (or on its real robot) with
     the household's clips as goals, at a third of the base model's learning rate: a parent that is itself a
-    household's fine-tune already runs at that rate, so a second and third fine-tune do not slow down."""
+    household's fine-tune already runs at that rate, so a second and third fine-tune do not slow down.
+
+    In simulation `replay_share` of the environments keep practising in the base model's own rooms (for the
+    shipped bases, a new room per episode from the training ranges), so that what the base learnt there is
+    not lost to the household's one room."""
     from core.rooms import room_setting
     from learning.rl.env_groups import IN_PROCESS
     from learning.rl.ppo import PPOConfig
 
+    from_base = base.goal_split != "household"
+    replay_room = base.room if from_base else base.replay_room
+    replay_envs = round(replay_share * base.num_envs)
     if robot_env_context is not None:
+        replay_envs = 0
         base = dataclasses.replace(
             base, num_envs=1, env_groups=1, num_minibatches=1, env_context=robot_env_context
         )
@@ -75,11 +88,13 @@ def improvement_config(
     return dataclasses.replace(
         base,
         total_steps=max(int(steps), base.batch_size),  # at least one PPO update
-        learning_rate=base.learning_rate if base.goal_split == "household" else base.learning_rate / 3,
+        learning_rate=base.learning_rate / 3 if from_base else base.learning_rate,
         goal_split="household",
         seed=seed,
         current_sound=False,
         room=room_setting(room),
+        replay_envs=min(replay_envs, base.num_envs - 1),
+        replay_room=replay_room,
     )
 
 
@@ -94,12 +109,14 @@ def improve_policy(
     on_rollout_step: Callable[[Any], None] | None = None,
     robot_env_context: str | None = None,
     room: "DomainShift | None" = None,
+    replay_share: float = 0.0,
 ) -> PolicyImproveResult:
     """PPO from `policy_checkpoint`; `on_update(fraction, point)` after each update (True: stop),
     `on_rollout_step` after each step of env 0 (`learning.rl.ppo.RolloutStep`: the live view). With
     `robot_env_context` (`learning.rl.env_groups.in_process_env`: a real robot), PPO runs on that one
     environment in this process instead of simulated worlds; simulated worlds are in `room`, the robot's own
-    (None: the training room), whatever rooms the parent was trained in. The VAR and the policy run where the
+    (None: the training room), but for `replay_share` of the environments, which practise in the base
+    model's rooms (`improvement_config`). The VAR and the policy run where the
     worker's VARBOT_DEVICE says (`learning.device.resolve_device`)."""
     from backend.settings import get_settings
     from learning.device import resolve_device
@@ -110,7 +127,7 @@ def improve_policy(
     base = PPOConfig.from_dict(read_policy_checkpoint(policy_checkpoint)["config"])
     if base.goal_encoder != "var":
         raise ValueError(f"{policy_checkpoint} was not trained with the VAR; it cannot improve itself")
-    config = improvement_config(base, steps, seed, room, robot_env_context)
+    config = improvement_config(base, steps, seed, room, robot_env_context, replay_share)
     updates_total = config.num_updates
 
     def hook(record: dict[str, Any]) -> bool:

@@ -20,6 +20,7 @@ from worker.var_stage import Diverged
 
 EVAL_NUM_ENVS = int(os.environ.get("VARBOT_EVAL_NUM_ENVS", 4))
 DEFAULT_REPLAY_FRACTION = 0.25  # of the fine-tune's training triplets, as `varbot var finetune` mixes
+DEFAULT_POLICY_REPLAY_SHARE = 0.25  # of the policy self-improvement's environments, in the base's rooms
 
 
 def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
@@ -74,6 +75,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
             live,
             on_arm,
             context.room,
+            float(context.params.get("policy_replay_share", DEFAULT_POLICY_REPLAY_SHARE)),
         )
     compact = context.folder / "policy" / "final.pt"
     _compact_policy(result.checkpoint, compact)

@@ -57,6 +57,14 @@ class _InProcessVectorEnv(SyncVectorEnv):
         return self.step(self._pending_actions)
 
 
+def env_rooms(num_envs: int, room: Any, replay_envs: int = 0, replay_room: Any = None) -> list[Any]:
+    """Each environment's room: `room`, but for `replay_envs` of them spread evenly over the environments
+    (so over the groups too), which practise in `replay_room`. Environment 0, the one the scene follows,
+    is always in `room`."""
+    replays = {num_envs - 1 - (i * num_envs) // replay_envs for i in range(replay_envs)}
+    return [replay_room if i in replays else room for i in range(num_envs)]
+
+
 class EnvGroups:
     def __init__(
         self,
@@ -67,18 +75,26 @@ class EnvGroups:
         success_rule: str | None,
         max_steps: int | None,
         context: str,
-        domain: Any = None,
+        domains: list[Any] | None = None,
     ) -> None:
+        """`domains`: each environment's room as its world takes it (None: all in the training room)."""
         size = num_envs // groups
+        domains = domains or [None] * num_envs
         self.num_envs = num_envs
         self.slices = [slice(g * size, (g + 1) * size) for g in range(groups)]
         self.vector_envs: list[AsyncVectorEnv | SyncVectorEnv] = [
             _in_process_vector_env(context, num_envs)
             if context.startswith(IN_PROCESS)
             else make_vector_env(
-                world_id(world), size, image_size, success_rule, max_steps, domain=domain, context=context
+                world_id(world),
+                size,
+                image_size,
+                success_rule,
+                max_steps,
+                domains=domains[group],
+                context=context,
             )
-            for _ in self.slices
+            for group in self.slices
         ]
 
     def __iter__(self) -> Iterator[tuple[AsyncVectorEnv, slice]]:

@@ -110,10 +110,14 @@ def make_vector_env(
     schedules: Sequence[Sequence[tuple[int, int]]] | None = None,
     domain: Any = None,
     context: str = "forkserver",
+    domains: Sequence[Any] | None = None,
     world_options: dict[str, Any] | None = None,
 ) -> AsyncVectorEnv:
     """`num_envs` worlds in their own processes, reset in the same step as they end (final observation in
-    `info["final_obs"]`, the final step's info in `info["final_info"]`)."""
+    `info["final_obs"]`, the final step's info in `info["final_info"]`); all in `domain`'s room, or each in
+    its own with `domains` (one per world)."""
+    if domains is not None and len(domains) != num_envs:
+        raise ValueError(f"domains names {len(domains)} rooms for {num_envs} environments")
     if context == "forkserver":
         # the fork server imports these once; each worker forks from it instead of importing torch-free code
         # again
@@ -125,7 +129,7 @@ def make_vector_env(
             success_rule,
             max_steps,
             schedules[i] if schedules else None,
-            domain,
+            domains[i] if domains is not None else domain,
             world_options,
         )
         for i in range(num_envs)

@@ -46,7 +46,7 @@ from learning.rl.checkpoints import (  # the F401 ones: callers reach them throu
     write_run_checkpoint,
 )
 from learning.rl.curriculum import Curriculum
-from learning.rl.env_groups import EnvGroups, ended_view
+from learning.rl.env_groups import EnvGroups, ended_view, env_rooms
 from learning.rl.frozen_var import LoadedVar, VarOnDevice
 from learning.rl.goals import EpisodeGoals, goal_source
 from learning.rl.normalize import ReturnNormalizer
@@ -84,6 +84,9 @@ class PPOConfig:
     max_episode_steps: int | None = None  # None: the world's own T (100)
     # core.rooms.world_room: "training", "randomised" (a room per episode), a preset, or DomainShift fields
     room: str | dict[str, Any] = "training"
+    # environments that practise in `replay_room` instead (a household's fine-tune keeps its base's rooms)
+    replay_envs: int = 0
+    replay_room: str | dict[str, Any] = "randomised"
     # PPO
     total_steps: int = 1_000_000
     num_envs: int = 8
@@ -121,6 +124,12 @@ class PPOConfig:
 
     def validate(self) -> None:
         world_room(self.room)  # refuses a room it cannot name, saying which exist
+        world_room(self.replay_room)
+        if not 0 <= self.replay_envs < self.num_envs:
+            raise ValueError(
+                f"replay_envs ({self.replay_envs}) must leave at least one of the {self.num_envs} "
+                "environments in the run's own room"
+            )
         if self.num_envs % self.num_minibatches:
             raise ValueError(f"num_envs ({self.num_envs}) must be divisible by num_minibatches")
         if self.num_envs % self.env_groups:
@@ -242,7 +251,8 @@ class PPOTrainer:
         c = self.config
         self.envs = EnvGroups(
             c.world, c.num_envs, c.env_groups, c.image_size, c.success_rule, c.max_episode_steps,
-            c.env_context, domain=world_room(c.room),
+            c.env_context,
+            domains=env_rooms(c.num_envs, world_room(c.room), c.replay_envs, world_room(c.replay_room)),
         )  # fmt: skip
         plan = core_plan(os.cpu_count() or 1, c.num_envs, self.device, c.torch_threads)
         spread_processes(plan, self.envs.worker_processes())

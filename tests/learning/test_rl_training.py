@@ -12,9 +12,11 @@ import pytest
 import torch
 from rl_helpers import IMAGE, tiny_config
 
+from core.rooms import DomainShift, RoomRanges
 from learning.rl.baselines import method_config
 from learning.rl.checkpoints import FORMAT_VERSION
 from learning.rl.curriculum import curriculum_weights
+from learning.rl.env_groups import env_rooms
 from learning.rl.envs import make_env_fn, world_id
 from learning.rl.evaluate import deal, episode_schedule, evaluate
 from learning.rl.frozen_var import load_frozen_var
@@ -381,3 +383,37 @@ def test_the_trainers_curriculum_reaches_its_workers(
     # all of the share goes to the gaps: 10 of 11 to target 2, 1 of 11 to target 3
     assert trainer.curriculum.weights == pytest.approx([0.0, 0.0, 10 / 11, 1 / 11])
     assert len(finished) >= 2 and set(buf.intent.flatten().tolist()) <= {2, 3}
+
+
+def test_replay_environments_practise_in_their_own_rooms_beside_the_runs_room(
+    tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
+) -> None:
+    config = tiny_config(
+        num_envs=4, env_groups=2, room="unseen_room", replay_envs=1, replay_room="randomised"
+    )
+    trainer = make(config, tmp_path, var_checkpoint, goal_clips)
+    try:
+        trainer.reset_envs()
+        buf, _finished = trainer.collect_rollout()
+        worlds = [
+            (domain, ranges)
+            for envs in trainer.envs.vector_envs
+            for domain, ranges in zip(envs.get_attr("domain"), envs.get_attr("room_ranges"), strict=True)
+        ]
+    finally:
+        trainer.close()
+    assert [ranges is not None for _domain, ranges in worlds] == [False, False, False, True]
+    assert all(domain == DomainShift.unseen_room() for domain, _ranges in worlds[:3])
+    assert worlds[3][1] == RoomRanges() and worlds[3][0] != DomainShift.unseen_room()
+    assert buf.intent.shape[1] == 4
+
+
+def test_a_run_keeps_at_least_one_environment_in_its_own_room() -> None:
+    with pytest.raises(ValueError, match="at least one of the 2 environments"):
+        tiny_config(replay_envs=2).validate()
+
+
+def test_replay_environments_are_spread_over_the_groups_and_never_the_watched_one() -> None:
+    assert env_rooms(8, "own", 2, "base") == ["own"] * 3 + ["base"] + ["own"] * 3 + ["base"]
+    assert env_rooms(8, "own", 0, "base") == ["own"] * 8
+    assert env_rooms(4, "own", 3, "base")[0] == "own"

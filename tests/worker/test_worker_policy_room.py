@@ -36,3 +36,27 @@ def test_a_robots_own_room_survives_the_run_folder_so_a_resumed_run_has_the_same
     config = improvement_config(PPOConfig(), 800, 0, room, None)
     assert PPOConfig.from_dict(json.loads(json.dumps(asdict(config)))) == config
     assert world_room(room_setting(room)) == room
+
+
+def test_a_quarter_of_the_environments_keep_practising_in_the_base_models_rooms() -> None:
+    base = PPOConfig(room="randomised", num_envs=8)
+    config = improvement_config(base, 800, 0, ROOM_PRESETS["unseen_room"](), None, replay_share=0.25)
+    assert (config.replay_envs, config.replay_room) == (2, "randomised")
+    assert world_room(config.room) == ROOM_PRESETS["unseen_room"]()
+
+
+def test_a_second_fine_tune_replays_the_base_models_rooms_not_the_first_fine_tunes_room() -> None:
+    lamplit = ROOM_PRESETS["lamplit_room"]()
+    first = improvement_config(PPOConfig(room="randomised"), 800, 0, lamplit, None, 0.25)
+    second = improvement_config(first, 800, 1, lamplit, None, 0.25)
+    assert second.replay_room == "randomised" and second.replay_envs == 2
+
+
+def test_a_base_model_trained_in_the_training_room_is_replayed_there() -> None:
+    config = improvement_config(PPOConfig(room="training"), 800, 0, ROOM_PRESETS["unseen_room"](), None, 0.25)
+    assert config.replay_room == "training"
+
+
+def test_a_real_robot_has_no_simulated_rooms_to_replay() -> None:
+    config = improvement_config(PPOConfig(room="randomised"), 800, 0, None, "in-process:arm-1", 0.25)
+    assert (config.num_envs, config.replay_envs) == (1, 0)
