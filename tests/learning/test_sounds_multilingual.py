@@ -12,7 +12,7 @@ import pytest
 from learning.sounds import SoundCorpus, engines, load_corpus
 from learning.sounds.build import MANIFEST, build_corpora
 from learning.sounds.sets import SOUND_SETS
-from learning.sounds.speakers import HELD_OUT_VARIANTS, TRAIN_VARIANTS
+from learning.sounds.speakers import HELD_OUT_ACCENTS, HELD_OUT_VARIANTS, TRAIN_ACCENTS, TRAIN_VARIANTS
 from learning.var.dataset import SoundBank
 
 NAME = "wordset-multilingual"
@@ -30,6 +30,17 @@ def small_root(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def records(root: Path) -> list[dict]:
     return [json.loads(line) for line in (root / "sounds" / NAME / MANIFEST).read_text().splitlines()]
+
+
+def test_every_espeak_ng_accent_the_corpora_use_takes_the_speakers_voice_variant() -> None:
+    """An accent espeak-ng cannot resolve to one voice file drops the "+variant" silently ("fr-fr" did): all
+    of that accent's speakers then share one voice."""
+    accents = {*TRAIN_ACCENTS, *HELD_OUT_ACCENTS}
+    for language in SET.languages:
+        accents |= {*language.train_accents, *language.held_out_accents}
+    for accent in sorted(accents):
+        voices = {engines.espeak("deux", variant, accent, 50, 160) for variant in ("m1", "f2", "klatt")}
+        assert len(voices) == 3, f"espeak-ng ignores the voice variant of accent {accent!r}"
 
 
 def test_at_least_five_languages_each_with_a_word_for_every_intent() -> None:
