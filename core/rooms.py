@@ -296,9 +296,12 @@ ROOM_NAMES = (TRAINING_ROOM, RANDOMISED_ROOMS, *ROOM_PRESETS)
 def world_room(name: str | Mapping[str, Any]) -> "DomainShift | RoomRanges | None":
     """What a world is given for a room name: None for "training" (the world's own look), the training
     `RoomRanges` for "randomised" (a new room every reset), or a preset's room. A mapping of DomainShift
-    fields (`room_setting`: a household robot's own room) is that room."""
+    fields (`room_setting`: a household robot's own room) is that room. `ROOM[knob=value,...]` is the
+    training room or a preset with some numeric knobs changed (benches: which knob makes a room hard)."""
     if isinstance(name, Mapping):
         return room_of({"domain": name})
+    if name.endswith("]") and "[" in name:
+        return _room_with_knobs(name)
     if name == TRAINING_ROOM:
         return None
     if name == RANDOMISED_ROOMS:
@@ -306,6 +309,30 @@ def world_room(name: str | Mapping[str, Any]) -> "DomainShift | RoomRanges | Non
     if name in ROOM_PRESETS:
         return ROOM_PRESETS[name]()
     raise ValueError(f"unknown room {name!r}: choose one of {', '.join(ROOM_NAMES)}")
+
+
+def _room_with_knobs(name: str) -> DomainShift:
+    """`lamplit_room[camera_jitter_m=0,camera_jitter_deg=0]`: the room with those numeric knobs set."""
+    base_name, knobs = name[:-1].split("[", 1)
+    base = world_room(base_name)
+    if isinstance(base, RoomRanges):
+        raise ValueError(f"{name!r}: knobs change one room, not the ranges of {RANDOMISED_ROOMS!r}")
+    fields = dataclasses.asdict(base or DomainShift())
+    for knob in filter(None, knobs.split(",")):
+        field_name, _, value = knob.partition("=")
+        if field_name not in _NUMERIC_KNOBS:
+            known = ", ".join(_NUMERIC_KNOBS)
+            raise ValueError(f"{name!r}: {field_name!r} is not a numeric knob; these are: {known}")
+        try:
+            fields[field_name] = float(value)
+        except ValueError:
+            raise ValueError(f"{name!r}: {field_name} takes a number, not {value!r}") from None
+        if not fields[field_name] >= 0:
+            raise ValueError(f"{name!r}: {field_name} is at least 0, not {value}")
+    return DomainShift(**fields)
+
+
+_NUMERIC_KNOBS = ("camera_jitter_m", "camera_jitter_deg", "light_ambient", "light_diffuse")
 
 
 def room_setting(room: DomainShift | None) -> str | dict[str, Any]:

@@ -3,8 +3,10 @@ DomainShift fields; anything else is refused with a message that says what is wr
 rooms drawn from `RoomRanges`; the held-out presets lie outside every room those ranges can draw."""
 
 import colorsys
+import dataclasses
 import math
 import random
+import re
 
 import pytest
 
@@ -122,6 +124,28 @@ def test_rooms_by_name_are_the_training_room_the_training_ranges_or_a_preset() -
         ValueError, match="unknown room 'attic': choose one of training, randomised, unseen_room"
     ):
         world_room("attic")
+
+
+def test_a_room_name_can_change_a_presets_numeric_knobs_to_find_which_one_makes_it_hard() -> None:
+    still = world_room("lamplit_room[camera_jitter_m=0,camera_jitter_deg=0]")
+    lamplit = DomainShift.lamplit_room()
+    assert still == dataclasses.replace(lamplit, camera_jitter_m=0.0, camera_jitter_deg=0.0)
+    assert world_room("training[light_ambient=0.4]") == DomainShift(light_ambient=0.4)
+
+
+@pytest.mark.parametrize(
+    ("name", "says"),
+    [
+        ("randomised[camera_jitter_m=0]", "knobs change one room"),
+        ("lamplit_room[object_rgb=1]", "not a numeric knob; these are: camera_jitter_m"),
+        ("lamplit_room[camera_jitter_m=far]", "takes a number, not 'far'"),
+        ("lamplit_room[camera_jitter_m=-1]", "at least 0"),
+        ("attic[camera_jitter_m=0]", "unknown room 'attic'"),
+    ],
+)
+def test_a_room_name_with_knobs_it_cannot_take_says_what_is_wrong(name: str, says: str) -> None:
+    with pytest.raises(ValueError, match=re.escape(says)):
+        world_room(name)
 
 
 def _differences(drawn: DomainShift, held_out: DomainShift) -> dict[str, float]:
