@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from conditions import Conditions, describe
 from result_files import relative_path, write_result
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 from core.rooms import HELD_OUT_ROOMS, TRAINING_ROOM, RoomRanges
@@ -101,7 +102,7 @@ def table(entry: dict, tag: str) -> Table:
     for split in splits:
         view.add_column(split, justify="right")
     for room, cells in entry["cells"].items():
-        view.add_row(room, *(_cell(cells.get(split)) for split in splits))
+        view.add_row(escape(room), *(_cell(cells.get(split)) for split in splits))
     return view
 
 
