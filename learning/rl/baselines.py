@@ -4,9 +4,11 @@
 f_S(S_goal).
 - `var-current-sound`: the ablation that adds f_S(S_t)·f_S(S_goal), S_t = what is heard now (silence if
 nothing).
-- `sparse` (NoAux+SparseR): reward 1 when an episode ends in success; no VAR, no auxiliary losses. As in the
-paper, its image and sound encoders start from one-hot pre-training (`learning.rl.pretrain`, passed as
-`init_encoders`); without it they learn from the sparse reward alone.
+- `sparse` (NoAux+SparseR): reward 1 on every step that ends with the robot at its target, as the reference
+implementation's environment reward (until 2026-12-02 only at the last step of a successful episode, which a
+random policy reaches about once in 100 episodes); no VAR, no auxiliary losses. As in the paper, its image and
+sound encoders start from one-hot pre-training (`learning.rl.pretrain`, passed as `init_encoders`); without it
+they learn from the sparse reward alone.
 - `rsi` (RSI-style): a hand-shaped reward from simulator ground truth (progress towards the target + 1 on
 success) and auxiliary classification losses on ground-truth labels (what is in view; which intent the goal
 is).

@@ -448,7 +448,7 @@ class PPOTrainer:
         raw = self.reward(
             StepOutcome(
                 reward_embedding, self.episode_goals.clip[group], ended.heard, self.distance[group],
-                ended.distance, done, ended.success,
+                ended.distance, done, ended.success, self.intent[group],
             )
         )  # fmt: skip
         reward = self.normalise(group, raw, done)

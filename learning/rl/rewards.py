@@ -35,7 +35,15 @@ def intrinsic_reward_from_embeddings(
     return reward
 
 
-def sparse_reward(done: np.ndarray, final_success: np.ndarray) -> np.ndarray:
+def sparse_reward(heard: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """1 on every step that ends with the robot at its target (the gripper's ray on the target block, the
+    target filling the TurtleBot's view), as the reference implementation's environment reward pays: a
+    reward only at a successful episode's last step reached a random policy about once in 100 episodes,
+    and PPO never learnt from it."""
+    return ((heard == target) & (target >= 0)).astype(np.float32)
+
+
+def success_bonus(done: np.ndarray, final_success: np.ndarray) -> np.ndarray:
     return (done & final_success).astype(np.float32)
 
 
@@ -44,7 +52,7 @@ def shaped_reward(
 ) -> np.ndarray:
     """Distance decrease in action steps (ground truth, one simulator query per step) plus 1 for success."""
     progress = (distance_before - distance_after) / SHAPED_STEP_M
-    return (np.nan_to_num(progress) + sparse_reward(done, final_success)).astype(np.float32)
+    return (np.nan_to_num(progress) + success_bonus(done, final_success)).astype(np.float32)
 
 
 @dataclass
@@ -58,6 +66,7 @@ class StepOutcome:
     distance_after: np.ndarray
     done: np.ndarray  # the episode ended with this step
     success: np.ndarray  # ... and ended in success
+    target: np.ndarray  # the intent each environment's episode asks for (ground truth)
 
 
 class RewardFunction(Protocol):
@@ -99,7 +108,7 @@ class SparseReward:
     queries_simulator = True
 
     def __call__(self, step: StepOutcome) -> np.ndarray:
-        return sparse_reward(step.done, step.success).astype(np.float64)
+        return sparse_reward(step.heard, step.target).astype(np.float64)
 
 
 class ShapedReward:

@@ -19,6 +19,7 @@ from learning.rl.rewards import (
     make_reward,
     shaped_reward,
     sparse_reward,
+    success_bonus,
 )
 from learning.var.model import VAR, VARConfig
 
@@ -94,6 +95,7 @@ def outcome(**fields: object) -> StepOutcome:
         "distance_after": np.array([0.08, 0.13, 0.05]),
         "done": np.array([False, False, True]),
         "success": np.array([False, False, True]),
+        "target": np.array([0, 1, 1]),
     }
     return StepOutcome(**{**settings, **fields})
 
@@ -145,10 +147,17 @@ def test_a_runs_settings_choose_its_reward() -> None:
     assert type(make_reward("shaped", goals)) is ShapedReward
 
 
-def test_sparse_reward_is_one_only_when_an_episode_ends_in_success() -> None:
+def test_sparse_reward_is_one_on_every_step_that_ends_at_the_target_as_the_reference_pays() -> None:
+    heard = np.array([2, 2, -1, 1, 0])
+    target = np.array([2, 1, 1, 1, 0])
+    assert sparse_reward(heard, target).tolist() == [1.0, 0.0, 0.0, 1.0, 1.0]
+    assert SparseReward()(outcome(target=np.array([1, 0, 1]))).tolist() == [0.0, 1.0, 1.0]
+
+
+def test_the_shaped_rewards_success_bonus_comes_once_at_a_successful_end() -> None:
     done = np.array([True, True, False, False])
     success = np.array([True, False, True, False])
-    assert sparse_reward(done, success).tolist() == [1.0, 0.0, 0.0, 0.0]
+    assert success_bonus(done, success).tolist() == [1.0, 0.0, 0.0, 0.0]
 
 
 def test_shaped_reward_counts_progress_in_action_steps_plus_success() -> None:
