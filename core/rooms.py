@@ -311,6 +311,9 @@ def world_room(name: str | Mapping[str, Any]) -> "DomainShift | RoomRanges | Non
     raise ValueError(f"unknown room {name!r}: choose one of {', '.join(ROOM_NAMES)}")
 
 
+_NUMERIC_KNOBS = ("camera_jitter_m", "camera_jitter_deg", "light_ambient", "light_diffuse")
+
+
 def _room_with_knobs(name: str) -> DomainShift:
     """`lamplit_room[camera_jitter_m=0,camera_jitter_deg=0]`: the room with those numeric knobs set."""
     base_name, knobs = name[:-1].split("[", 1)
@@ -324,15 +327,11 @@ def _room_with_knobs(name: str) -> DomainShift:
             known = ", ".join(_NUMERIC_KNOBS)
             raise ValueError(f"{name!r}: {field_name!r} is not a numeric knob; these are: {known}")
         try:
-            fields[field_name] = float(value)
+            number = float(value)
         except ValueError:
             raise ValueError(f"{name!r}: {field_name} takes a number, not {value!r}") from None
-        if not fields[field_name] >= 0:
-            raise ValueError(f"{name!r}: {field_name} is at least 0, not {value}")
+        fields[field_name] = _checked(field_name, number)  # the rule a robot's settings.domain follows
     return DomainShift(**fields)
-
-
-_NUMERIC_KNOBS = ("camera_jitter_m", "camera_jitter_deg", "light_ambient", "light_diffuse")
 
 
 def room_setting(room: DomainShift | None) -> str | dict[str, Any]:

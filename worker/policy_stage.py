@@ -93,7 +93,7 @@ def improvement_config(
         seed=seed,
         current_sound=False,
         room=room_setting(room),
-        replay_envs=min(replay_envs, base.num_envs - 1),
+        replay_envs=replay_envs,
         replay_room=replay_room,
     )
 

@@ -108,14 +108,13 @@ def make_vector_env(
     success_rule: str | None = None,
     max_steps: int | None = None,
     schedules: Sequence[Sequence[tuple[int, int]]] | None = None,
-    domain: Any = None,
-    context: str = "forkserver",
     domains: Sequence[Any] | None = None,
+    context: str = "forkserver",
     world_options: dict[str, Any] | None = None,
 ) -> AsyncVectorEnv:
     """`num_envs` worlds in their own processes, reset in the same step as they end (final observation in
-    `info["final_obs"]`, the final step's info in `info["final_info"]`); all in `domain`'s room, or each in
-    its own with `domains` (one per world)."""
+    `info["final_obs"]`, the final step's info in `info["final_info"]`); `domains`: each world's room (None:
+    all in the training room)."""
     if domains is not None and len(domains) != num_envs:
         raise ValueError(f"domains names {len(domains)} rooms for {num_envs} environments")
     if context == "forkserver":
@@ -129,7 +128,7 @@ def make_vector_env(
             success_rule,
             max_steps,
             schedules[i] if schedules else None,
-            domains[i] if domains is not None else domain,
+            domains[i] if domains is not None else None,
             world_options,
         )
         for i in range(num_envs)

@@ -103,8 +103,9 @@ def evaluate(
     num_envs = min(num_envs, len(schedule))
     shares = deal(schedule, num_envs)
     envs = make_vector_env(
-        world_id(world), num_envs, image_size, success_rule, max_steps, schedules=shares, domain=domain
-    )
+        world_id(world), num_envs, image_size, success_rule, max_steps, schedules=shares,
+        domains=[domain] * num_envs,
+    )  # fmt: skip
     results: list[EpisodeResult] = []
     frames: list[np.ndarray] = []
     try:
