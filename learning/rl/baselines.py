@@ -9,9 +9,9 @@ implementation's environment reward (until 2026-12-02 only at the last step of a
 random policy reaches about once in 100 episodes); no VAR, no auxiliary losses. As in the paper, its image and
 sound encoders start from one-hot pre-training (`learning.rl.pretrain`, passed as `init_encoders`); without it
 they learn from the sparse reward alone.
-- `rsi` (RSI-style): a hand-shaped reward from simulator ground truth (progress towards the target + 1 on
-success) and auxiliary classification losses on ground-truth labels (what is in view; which intent the goal
-is).
+- `rsi` (RSI-style): a hand-shaped reward from simulator ground truth (progress towards the target + the
+sparse reward on every step at the target; until 2026-12-02 + 1 once, on success at the episode's end) and
+auxiliary classification losses on ground-truth labels (what is in view; which intent the goal is).
 
 Labels are counted as the paper does (`PPOTrainer.labels_used`): a VAR triplet = 2 labels; each
 extrinsic-reward step = one simulator query; each auxiliary-loss step = 2 ground-truth labels; each one-hot

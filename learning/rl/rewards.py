@@ -5,8 +5,8 @@ A run's reward is one of the `RewardFunction`s below, chosen by `make_reward` fr
   once per step and is both this reward and, one step later, part of the observation, so the reward reads
   embeddings the trainer already has (`intrinsic_reward_from_embeddings`).
 - `IntrinsicRewardWithCurrentSound` (`var` + current sound): adds f_S(S_{t+1}) · f_S(S_goal).
-- `SparseReward` (`sparse`): 1 when an episode ends in success (NoAux+SparseR baseline).
-- `ShapedReward` (`shaped`): progress towards the target from simulator ground truth, plus 1 on success
+- `SparseReward` (`sparse`): 1 on every step that ends at the target (NoAux+SparseR baseline).
+- `ShapedReward` (`shaped`): progress towards the target from simulator ground truth, plus the sparse reward
   (RSI-style baseline).
 """
 
@@ -43,16 +43,14 @@ def sparse_reward(heard: np.ndarray, target: np.ndarray) -> np.ndarray:
     return ((heard == target) & (target >= 0)).astype(np.float32)
 
 
-def success_bonus(done: np.ndarray, final_success: np.ndarray) -> np.ndarray:
-    return (done & final_success).astype(np.float32)
-
-
 def shaped_reward(
-    distance_before: np.ndarray, distance_after: np.ndarray, done: np.ndarray, final_success: np.ndarray
+    distance_before: np.ndarray, distance_after: np.ndarray, heard: np.ndarray, target: np.ndarray
 ) -> np.ndarray:
-    """Distance decrease in action steps (ground truth, one simulator query per step) plus 1 for success."""
+    """Distance decrease in action steps (ground truth, one simulator query per step) plus the sparse reward
+    on every step at the target. Until 2026-12-02 the bonus came once, at a successful episode's last step:
+    progress alone pays nothing for staying at the target, and those policies drifted off it."""
     progress = (distance_before - distance_after) / SHAPED_STEP_M
-    return (np.nan_to_num(progress) + success_bonus(done, final_success)).astype(np.float32)
+    return (np.nan_to_num(progress) + sparse_reward(heard, target)).astype(np.float32)
 
 
 @dataclass
@@ -115,7 +113,7 @@ class ShapedReward:
     queries_simulator = True
 
     def __call__(self, step: StepOutcome) -> np.ndarray:
-        return shaped_reward(step.distance_before, step.distance_after, step.done, step.success).astype(
+        return shaped_reward(step.distance_before, step.distance_after, step.heard, step.target).astype(
             np.float64
         )
 

@@ -19,7 +19,6 @@ from learning.rl.rewards import (
     make_reward,
     shaped_reward,
     sparse_reward,
-    success_bonus,
 )
 from learning.var.model import VAR, VARConfig
 
@@ -130,7 +129,7 @@ def test_the_current_sound_strategy_adds_what_is_heard_now_against_the_goal() ->
 
 def test_the_extrinsic_strategies_read_the_simulator_and_count_its_queries() -> None:
     assert SparseReward()(outcome()).tolist() == [0.0, 0.0, 1.0]
-    # 2 cm closer = one step; 3 cm further = -1.5 steps; ended on target = +1
+    # 2 cm closer = one step; 3 cm further = -1.5 steps; at the target = +1
     assert ShapedReward()(outcome()).tolist() == pytest.approx([1.0, -1.5, 1.0])
     assert SparseReward.queries_simulator and ShapedReward.queries_simulator
 
@@ -154,19 +153,13 @@ def test_sparse_reward_is_one_on_every_step_that_ends_at_the_target_as_the_refer
     assert SparseReward()(outcome(target=np.array([1, 0, 1]))).tolist() == [0.0, 1.0, 1.0]
 
 
-def test_the_shaped_rewards_success_bonus_comes_once_at_a_successful_end() -> None:
-    done = np.array([True, True, False, False])
-    success = np.array([True, False, True, False])
-    assert success_bonus(done, success).tolist() == [1.0, 0.0, 0.0, 0.0]
-
-
-def test_shaped_reward_counts_progress_in_action_steps_plus_success() -> None:
-    before = np.array([0.10, 0.10, 0.05])
-    after = np.array([0.08, 0.13, 0.05])
-    done = np.array([False, False, True])
-    success = np.array([False, False, True])
-    # 2 cm closer = one full step; 3 cm further = -1.5 steps; at the end on target = +1
-    assert shaped_reward(before, after, done, success).tolist() == pytest.approx([1.0, -1.5, 1.0])
+def test_shaped_reward_counts_progress_in_action_steps_plus_one_on_every_step_at_the_target() -> None:
+    before = np.array([0.10, 0.10, 0.05, 0.0])
+    after = np.array([0.08, 0.13, 0.05, 0.0])
+    heard = np.array([-1, 1, 1, 2])
+    target = np.array([0, 0, 1, 2])
+    # 2 cm closer = one full step; 3 cm further = -1.5 steps; staying on the target pays 1 every step
+    assert shaped_reward(before, after, heard, target).tolist() == pytest.approx([1.0, -1.5, 1.0, 1.0])
 
 
 def test_goals_are_drawn_from_the_clips_of_the_requested_intent() -> None:
