@@ -215,7 +215,7 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
     from learning.rl.frozen_var import load_frozen_var
     from learning.rl.plots import plot_run, read_metrics
     from learning.rl.ppo import load_policy
-    from learning.rl.rewards import REWARD_PAYS, corpus_bank
+    from learning.rl.rewards import REWARD_REVISIONS, corpus_bank
     from learning.rl.run import train_run
     from learning.sounds import load_corpus
 
@@ -301,7 +301,7 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
         if understood is None
         else {t: float(h.mean()) for t, h in understood.items()},
         "paper_success": PAPER[row].get(method.replace("-current-sound", "")),
-        "reward_pays": REWARD_PAYS[config.reward],
+        "reward_revision": REWARD_REVISIONS[config.reward],
         "var_checkpoint": None if var_path is None else relative_path(var_path),
         "run_dir": relative_path(run_dir),
         "curves": relative_path(run_dir / "curves.png"),

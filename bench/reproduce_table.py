@@ -16,13 +16,13 @@ SEED_SOURCES = ("rows", "experiments", "earlier_runs")  # where a recipe's other
 
 def recipe(record: dict) -> str:
     """What a run trained, apart from its seed; None settings are the same as missing ones (older runs
-    stored the defaults of their day as None). What the reward paid is part of it (`REWARD_PAYS`)."""
+    stored the defaults of their day as None). What the reward paid is part of it (`REWARD_REVISIONS`)."""
     config = {k: v for k, v in (record.get("config") or {}).items() if k not in NOT_RECIPE and v is not None}
     same = {
         "row": record["row"],
         "method": record["method"],
         "var": record.get("var_checkpoint"),
-        "reward_pays": record.get("reward_pays"),
+        "reward_revision": int(record.get("reward_revision", 1)),
     }
     return json.dumps(relative_paths({**same, "config": config}), sort_keys=True)
 

@@ -18,13 +18,10 @@ import numpy as np
 import torch
 
 RewardKind = Literal["var", "sparse", "shaped"]
-# What each reward pays, stored with every Table I run: a reward whose payment changed is a new recipe, so
-# runs before and after the change are never seeds of one (records without it predate 2026-12-02).
-REWARD_PAYS: dict[RewardKind, str] = {
-    "var": "f_I(I_t+1)·f_S(S_goal) every step",
-    "sparse": "1 on every step at the target (since 2026-12-02)",
-    "shaped": "progress in action steps + 1 on every step at the target (since 2026-12-02)",
-}
+# Raised when what a reward pays changes; stored with every Table I run and part of its recipe, so runs before
+# and after a change are never seeds of one recipe (records without it: revision 1). Revision 2 (2026-12-02):
+# sparse and shaped pay 1 on every step at the target, not once at a successful end.
+REWARD_REVISIONS: dict[RewardKind, int] = {"var": 1, "sparse": 2, "shaped": 2}
 SHAPED_STEP_M = (
     0.02  # one full action moves the Kuka/Kinova gripper target 2 cm: progress is counted in steps
 )

@@ -119,7 +119,9 @@ def test_a_run_with_another_var_is_another_recipe_and_one_seed_has_no_spread():
 
 
 def test_runs_whose_reward_paid_differently_are_never_seeds_of_one_recipe():
-    per_step = {**run_record("per-step", 2, 0.8), "reward_pays": "1 on every step at the target"}
-    results = {"rows": {"kuka-wordset:var": per_step}, "earlier_runs": [run_record("at-the-end", 1, 0.0)]}
+    per_step = {**run_record("per-step", 2, 0.8), "reward_revision": 2}
+    relabelled = {**run_record("relabelled", 3, 0.7), "reward_revision": "2"}  # `records relabel` sets text
+    at_the_end = run_record("at-the-end", 1, 0.0)  # stored before revisions: revision 1
+    results = {"rows": {"kuka-wordset:var": per_step}, "earlier_runs": [at_the_end, relabelled]}
     [line] = table_lines(results)
-    assert [s["tag"] for s in line["seeds"]] == ["per-step"]
+    assert [s["tag"] for s in line["seeds"]] == ["per-step", "relabelled"]
