@@ -34,6 +34,7 @@ and every such edit is logged in the file under "edits" (see bench/reproduce_rec
 """
 
 import argparse
+import signal
 import subprocess
 import sys
 import time
@@ -384,7 +385,26 @@ def curves(results: dict) -> None:
         results.setdefault("curves", {})[row] = relative_path(path)
 
 
+def mark_interrupted(store: dict, entry: str) -> None:
+    """A run stopped by Ctrl-C or SIGTERM says so, instead of staying "running" in the JSON."""
+    record = store.get(entry, {})
+    if record.get("status") != "running":
+        return
+    steps = record.get("progress", {}).get("global_step", 0)
+    store[entry] = {
+        **record,
+        "status": "interrupted",
+        "note": f"stopped at {steps:,} env steps (its last checkpoint may be earlier); the same command with "
+        "--resume takes it up again from its run directory",
+    }
+
+
+def stop_on_sigterm(signum: int, frame: object) -> None:
+    sys.exit(f"stopped by signal {signum}")
+
+
 def main() -> None:
+    signal.signal(signal.SIGTERM, stop_on_sigterm)
     if sys.argv[1:2] == ["records"]:
         records_command(sys.argv[2:], print_table)
         return
@@ -414,7 +434,12 @@ def main() -> None:
                 if (r.get("row"), r.get("method"), r.get("tag")) != (row, method, args.tag)
             ]
         save_results(results)
-        store[entry] = run_row(key, args, results)
+        try:
+            store[entry] = run_row(key, args, results)
+        except (KeyboardInterrupt, SystemExit):
+            mark_interrupted(store, entry)
+            save_results(results)
+            raise
         save_results(results)
     curves(results)
     print_table(results)

@@ -125,3 +125,16 @@ def test_runs_whose_reward_paid_differently_are_never_seeds_of_one_recipe():
     results = {"rows": {"kuka-wordset:var": per_step}, "earlier_runs": [at_the_end, relabelled]}
     [line] = table_lines(results)
     assert [s["tag"] for s in line["seeds"]] == ["per-step", "relabelled"]
+
+
+def test_a_run_stopped_by_a_signal_is_stored_as_interrupted_with_how_to_take_it_up_again():
+    from reproduce import mark_interrupted
+
+    running = {"row": "kuka-wordset", "tag": "t", "status": "running", "progress": {"global_step": 16000}}
+    store = {"kuka-wordset:var": running, "done": {"status": "complete"}}
+    mark_interrupted(store, "kuka-wordset:var")
+    mark_interrupted(store, "done")
+    assert store["kuka-wordset:var"]["status"] == "interrupted"
+    assert "stopped at 16,000 env steps" in store["kuka-wordset:var"]["note"]
+    assert "--resume" in store["kuka-wordset:var"]["note"]
+    assert store["done"] == {"status": "complete"}
