@@ -161,7 +161,7 @@ def _plan(set_: SoundSet, profile: Profile, seed: int) -> list[ClipPlan]:
     if set_ is MIX:
         return _plan_recordings(profile, rng)
     if set_.languages:
-        return _plan_multilingual(set_, profile, seed, rng)
+        return _plan_multilingual(set_, profile, seed)
     return _plan_speech(set_, profile, seed, rng)
 
 
@@ -179,14 +179,14 @@ def _plan_speech(set_: SoundSet, profile: Profile, seed: int, rng: np.random.Gen
     return plans
 
 
-def _plan_multilingual(
-    set_: SoundSet, profile: Profile, seed: int, rng: np.random.Generator
-) -> list[ClipPlan]:
+def _plan_multilingual(set_: SoundSet, profile: Profile, seed: int) -> list[ClipPlan]:
     """Each speaker says its own language's word for every intent; the unheard-room tier's clips are recorded
-    in a simulated room of their own (variation "room": the seed of its draw)."""
+    in a simulated room of their own (variation "room": the seed of its draw). Each speaker's clips vary
+    from a stream of its own, so a tier's size changes no other tier's clips."""
     size = MULTILINGUAL_SIZES[profile.name]
     plans = []
     for language, speaker in multilingual_speakers(set_.languages, size, seed):
+        rng = np.random.default_rng([seed, 3, zlib.crc32(speaker.id.encode())])
         for intent, text in enumerate(language.words):
             for repeat in range(size.variations):
                 clip = f"clips/{_slug(speaker.id)}/{intent}-{repeat}.wav"
@@ -401,6 +401,7 @@ def _recipe(set_: SoundSet, profile: Profile, seed: int, base: Path) -> dict[str
     if set_.languages:
         recipe["languages"] = [asdict(language) for language in set_.languages]
         recipe["multilingual_size"] = asdict(MULTILINGUAL_SIZES[profile.name])
+        recipe["draws"] = "one stream per tier and per speaker"
         recipe["rooms"] = asdict(RoomRanges()) | {"ism_order": ISM_ORDER}
     return recipe
 

@@ -182,10 +182,10 @@ def multilingual_speakers(
     languages: tuple[Language, ...], size: MultilingualSize, seed: int
 ) -> list[tuple[Language, Speaker]]:
     """Every speaker of a multilingual set with the language it speaks, deterministic for `seed` (its accent
-    is one of that language's espeak-ng voices)."""
-    rng = np.random.default_rng([seed, 2])
+    is one of that language's espeak-ng voices). Each tier draws from its own stream, so one tier's size
+    never changes another tier's speakers."""
     speakers = []
-    for language in languages:
+    for index, language in enumerate(languages):
         tiers = (
             (TRAIN_VARIANTS, language.train_accents, TRAIN, size.train, "t"),
             (
@@ -197,7 +197,8 @@ def multilingual_speakers(
             ),
             (HELD_OUT_VARIANTS, language.held_out_accents, UNHEARD_ROOM, size.room, "r"),
         )
-        for variants, accents, split, count, tag in tiers:
+        for stream, (variants, accents, split, count, tag) in enumerate(tiers):
+            rng = np.random.default_rng([seed, 2, index, stream])
             drawn = _espeak_speakers(rng, count, variants, accents, split, f"{language.code}-{tag}")
             speakers += [(language, speaker) for speaker in drawn]
     return speakers

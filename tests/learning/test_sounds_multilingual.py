@@ -9,10 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from learning.sounds import SoundCorpus, engines, load_corpus
+from learning.sounds import SoundCorpus, build, engines, load_corpus
 from learning.sounds.build import MANIFEST, build_corpora
 from learning.sounds.sets import SOUND_SETS
-from learning.sounds.speakers import HELD_OUT_ACCENTS, HELD_OUT_VARIANTS, TRAIN_ACCENTS, TRAIN_VARIANTS
+from learning.sounds.speakers import (
+    HELD_OUT_ACCENTS,
+    HELD_OUT_VARIANTS,
+    MULTILINGUAL_SIZES,
+    TRAIN_ACCENTS,
+    TRAIN_VARIANTS,
+)
 from learning.var.dataset import SoundBank
 
 NAME = "wordset-multilingual"
@@ -75,6 +81,16 @@ def test_the_same_seed_builds_the_same_clips(small_root: Path, tmp_path: Path) -
     np.testing.assert_array_equal(
         load_corpus(NAME, tmp_path).features, load_corpus(NAME, small_root).features
     )
+
+
+def test_more_training_speakers_leave_the_unheard_speakers_and_their_clips_as_they_were(monkeypatch) -> None:
+    def planned_unheard(train_speakers: int) -> list[tuple]:
+        sizes = {"default": dataclasses.replace(MULTILINGUAL_SIZES["default"], train=train_speakers)}
+        monkeypatch.setattr(build, "MULTILINGUAL_SIZES", sizes)
+        plans = build._plan(SET, build.PROFILES["default"], seed=0)
+        return [(p.clip, p.speaker, p.text, p.variation) for p in plans if p.speaker.split != "train"]
+
+    assert planned_unheard(16) == planned_unheard(32)
 
 
 def test_no_language_or_transcript_reaches_the_var(small_root: Path) -> None:
