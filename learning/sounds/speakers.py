@@ -130,7 +130,7 @@ class MultilingualSize:
 
 
 MULTILINGUAL_SIZES = {
-    "default": MultilingualSize(train=16, unheard=6, room=4, variations=3),
+    "default": MultilingualSize(train=32, unheard=12, room=4, variations=3),
     "small": MultilingualSize(train=2, unheard=1, room=1, variations=1),
 }
 
