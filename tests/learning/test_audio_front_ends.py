@@ -4,7 +4,6 @@ MFCC stays the default; a corpus's features are computed once per front end and 
 import subprocess
 import sys
 import textwrap
-import time
 
 import numpy as np
 import pytest
@@ -88,16 +87,6 @@ def test_the_batch_path_gives_the_wheels_streaming_embeddings_wherever_the_sound
     inside = [i for i in range(len(ours)) if 1280 * i >= padding and 1280 * (i + 9) + 1760 <= end]
     assert len(inside) >= 10
     np.testing.assert_allclose(ours[inside], theirs[100 + np.array(inside)], atol=1e-3, rtol=1e-3)
-
-
-def test_a_one_second_clip_takes_at_most_20_ms_on_one_core() -> None:
-    waveform, _ = decode_audio(spoken("two three"))
-    one_second = np.resize(waveform, 16_000)
-    features_from_waveform(one_second, "speech", EMBEDDING)  # load the models once
-    started = time.process_time()  # CPU time of this process: the machine is shared
-    for _ in range(10):
-        features_from_waveform(one_second, "speech", EMBEDDING)
-    assert (time.process_time() - started) / 10 < 0.020
 
 
 def test_nothing_is_fetched_over_the_network_at_import_or_first_use() -> None:
