@@ -1,6 +1,6 @@
 """Robots: admins manage them, members see them, other households cannot."""
 
-from apitest_helpers import make_robot, upload_snapshot
+from apitest_helpers import make_robot, make_wav, upload_snapshot
 
 
 def test_admin_creates_updates_and_lists_robots(admin, member) -> None:
@@ -57,3 +57,16 @@ def test_a_room_the_worker_could_not_build_is_refused_saying_why(admin) -> None:
     assert refused.status_code == 422 and "settings.domain.floor_texture" in refused.json()["detail"]
     moved = admin.client.patch(f"/api/v1/robots/{robot}", json={"settings": {"domain": "unseen_room"}})
     assert moved.status_code == 200 and moved.json()["settings"] == {"domain": "unseen_room"}
+
+
+def test_a_robot_id_beyond_any_database_id_is_refused_saying_which_field(member) -> None:
+    """Found by the schema fuzz test: a 20-digit robot id reached SQLite and the API answered 500, both when
+    trying a command and when choosing the robot the scene shows."""
+    tried = member.client.post(
+        "/api/v1/scene/tries",
+        files={"file": ("said.wav", make_wav(), "audio/wav")},
+        data={"robot_id": str(2**64)},
+    )
+    assert tried.status_code == 422 and "robot_id" in tried.text
+    shown = member.client.put("/api/v1/scene/robot", json={"robot_id": 2**64})
+    assert shown.status_code == 422 and "robot_id" in shown.text

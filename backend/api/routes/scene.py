@@ -11,6 +11,7 @@ from backend import audio, scene_requests
 from backend.api.responses import errors
 from backend.deps import CallerDep, SessionDep, SettingsDep
 from backend.errors import ApiError, NotFound, Unavailable
+from backend.schemas import MAX_ID, DbId
 from backend.services import robots
 from scene import on_demand
 from scene.endpoint import announced
@@ -34,7 +35,7 @@ class ShownRobot(BaseModel):
 
 
 class RobotChoice(BaseModel):
-    robot_id: int
+    robot_id: DbId
 
 
 class VoiceRejected(ApiError):
@@ -68,7 +69,7 @@ def try_it_now(
     session: SessionDep,
     settings: SettingsDep,
     robot_id: Annotated[
-        int | None, Form(description="the robot to carry it out (default: the scene's)")
+        int | None, Form(ge=1, le=MAX_ID, description="the robot to carry it out (default: the scene's)")
     ] = None,
 ) -> TryStatus:
     """The household's robot, in its scene, carries out what was just said. The clip is not kept: it goes to
