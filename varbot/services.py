@@ -77,10 +77,14 @@ def throwaway_stack_environment(
     data_dir: Path, redis_socket: Path, secret_key: str, **settings: str
 ) -> dict[str, str]:
     """`stack_environment` for a stack that lives only as long as a test session: the test environment, its
-    own secret key and cheap password hashing, then `settings`."""
-    return stack_environment(
+    own secret key and cheap password hashing, then `settings`. No VARBOT_ setting is inherited from this
+    process: another test's stack may have set some (its base-model folder, say) and still be running."""
+    env = stack_environment(
         data_dir, redis_socket, **THROWAWAY_STACK_SETTINGS, VARBOT_SECRET_KEY=secret_key, **settings
     )
+    chosen = {"VARBOT_DATA_DIR", "VARBOT_BROKER_URL", "VARBOT_SECRET_KEY", *THROWAWAY_STACK_SETTINGS}
+    chosen.update(settings)
+    return {key: value for key, value in env.items() if not key.startswith("VARBOT_") or key in chosen}
 
 
 def varbot_argv(*args: str) -> list[str]:
