@@ -7,6 +7,8 @@ from typing import Annotated
 
 import typer
 
+from scene.on_demand import DEFAULT_FPS
+
 WAIT_POLL_S = 5.0
 
 
@@ -23,7 +25,7 @@ def run_scene(
     port: Annotated[int, typer.Option(help="Viser's port (0: any free port, announced to the API)")] = 0,
     fps: Annotated[
         float, typer.Option(min=1.0, max=60.0, help="simulation and camera frames per second")
-    ] = 15.0,
+    ] = DEFAULT_FPS,
     wait: Annotated[bool, typer.Option(help="wait for the first household instead of stopping")] = False,
     stop_when_unwatched_s: Annotated[
         float, typer.Option(min=0.0, help="stop after this many seconds without a viewer (0: never)")

@@ -22,11 +22,18 @@ from scene.endpoint import alive
 
 IDLE_STOP_ENV = "VARBOT_SCENE_IDLE_STOP_S"
 DEFAULT_IDLE_STOP_S = 300.0  # five minutes without a viewer, then the scene stops
+FPS_ENV = "VARBOT_SCENE_FPS"
+DEFAULT_FPS = 15.0
 STARTING_FOR_S = 120.0  # how long a started scene may take to announce itself before another start is tried
 
 
 def idle_stop_s() -> float:
     return float(os.environ.get(IDLE_STOP_ENV, DEFAULT_IDLE_STOP_S))
+
+
+def scene_fps() -> float:
+    """Simulation and camera frames per second of a started scene: a slow machine may ask for fewer."""
+    return float(os.environ.get(FPS_ENV, DEFAULT_FPS))
 
 
 def starting_file(household_id: int) -> Path:
@@ -47,6 +54,8 @@ def scene_argv(household_id: int) -> list[str]:
         str(household_id),
         "--stop-when-unwatched-s",
         str(idle_stop_s()),
+        "--fps",
+        str(scene_fps()),
     ]
 
 

@@ -25,6 +25,17 @@ def test_a_household_has_one_scene_lock_at_a_time(tmp_path, monkeypatch: pytest.
     other.close()
 
 
+def test_a_started_scene_runs_at_the_frame_rate_and_idle_time_the_settings_give(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.delenv(on_demand.IDLE_STOP_ENV, raising=False)
+    monkeypatch.delenv(on_demand.FPS_ENV, raising=False)
+    assert on_demand.scene_argv(3)[-4:] == ["--stop-when-unwatched-s", "300.0", "--fps", "15.0"]
+    monkeypatch.setenv(on_demand.IDLE_STOP_ENV, "20")
+    monkeypatch.setenv(on_demand.FPS_ENV, "5")
+    assert on_demand.scene_argv(3)[-4:] == ["--stop-when-unwatched-s", "20.0", "--fps", "5.0"]
+
+
 def test_a_scene_starts_on_demand_once_and_stops_when_nobody_watches(
     scene_household: SceneHousehold, monkeypatch: pytest.MonkeyPatch
 ) -> None:
