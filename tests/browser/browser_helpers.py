@@ -120,8 +120,8 @@ def stack() -> Iterator[Stack]:
         "browser-test-secret-key-not-for-production",
         VARBOT_ADMIN_PASSWORD=PASSWORD,
         VARBOT_SSE_POLL_SECONDS="0.5",
+        VARBOT_SCENE_IDLE_STOP_S="30",  # a scene no test watches stops soon, not after 5 min of rendering
     )
-    env.pop("VARBOT_SCENE_URL", None)
     with services.Stack(data_dir, env) as running:
         running.start(redis_service(sock, persist=False))
         running.migrate(quiet=True)
@@ -312,10 +312,18 @@ def console() -> ConsoleWatch:
     return ConsoleWatch()
 
 
+def viewport_of(request: pytest.FixtureRequest) -> dict[str, int]:
+    """The test module's `PAGE_VIEWPORT`, else a laptop's. The 3D scene's modules choose a smaller one:
+    Chromium renders the scene's WebGL in software here, and its cost grows with the pixels drawn."""
+    return getattr(request.module, "PAGE_VIEWPORT", {"width": 1280, "height": 900})
+
+
 @pytest.fixture
-def page(browser: object, stack: Stack, console: ConsoleWatch) -> Iterator[object]:
+def page(
+    browser: object, stack: Stack, console: ConsoleWatch, request: pytest.FixtureRequest
+) -> Iterator[object]:
     """A fresh, signed-in browser tab (Alice, the admin) whose console must stay free of errors."""
-    context = browser.new_context(viewport={"width": 1280, "height": 900})  # type: ignore[attr-defined]
+    context = browser.new_context(viewport=viewport_of(request))  # type: ignore[attr-defined]
     context.on("page", console.attach)
     tab = context.new_page()
     sign_in(tab, stack.url)

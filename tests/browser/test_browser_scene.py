@@ -30,6 +30,7 @@ VISER_PROTOCOL = f"viser-v{viser.__version__}"  # the viewer's subprotocol: Vise
 CAMERA_UPDATES = 20  # new camera images the browser must receive (and the frame rate is measured over)
 
 pytestmark = pytest.mark.browser
+PAGE_VIEWPORT = {"width": 960, "height": 640}  # less software WebGL to draw (`browser_helpers.viewport_of`)
 
 
 @pytest.fixture(scope="module")
@@ -173,7 +174,7 @@ def test_two_households_watch_their_own_scenes_at_once(
     subprocess.run(varbot_argv("admin", "create", *carol), env=stack.env, capture_output=True, check=True)
     with stack.client("gardener") as client:
         client.post("/robots", json={"name": "garden arm", "kind": "kuka-sim"}).raise_for_status()
-    carols = browser.new_context(viewport={"width": 1280, "height": 900})
+    carols = browser.new_context(viewport=PAGE_VIEWPORT)
     carols.on("page", console.attach)
     carol_tab = carols.new_page()
     sign_in(carol_tab, stack.url, "gardener")

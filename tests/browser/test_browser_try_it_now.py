@@ -24,6 +24,7 @@ from playwright.sync_api import TimeoutError as PlaywrightTimeout
 from test_browser_pages import keep_holding
 
 pytestmark = pytest.mark.browser
+PAGE_VIEWPORT = {"width": 960, "height": 640}  # less software WebGL to draw (`browser_helpers.viewport_of`)
 
 TIMINGS = ARTIFACTS / "try-it-now.json"
 FINISHED = ("done", "refused", "failed")
