@@ -2,7 +2,7 @@
 
 The wheel's own interface streams 80 ms chunks and runs the embedding model once per window; here the
 melspectrogram model runs once over the padded clip and the embedding model once over every 76-frame
-window of it (one batch), with the XNNPACK kernels on one thread: ~15 ms for a 1 s clip, not ~150 ms.
+window of it (one batch), with the XNNPACK kernels on one thread (bench/front_ends.py times it).
 
 The melspectrogram model floors each call's log-mels 80 dB under the call's loudest value. Called once per
 clip (as openWakeWord's own batch feature path does), a clip's silence is floored relative to the clip;
