@@ -70,3 +70,5 @@ def test_a_robot_id_beyond_any_database_id_is_refused_saying_which_field(member)
     assert tried.status_code == 422 and "robot_id" in tried.text
     shown = member.client.put("/api/v1/scene/robot", json={"robot_id": 2**64})
     assert shown.status_code == 422 and "robot_id" in shown.text
+    skipped = member.client.get("/api/v1/attempts/next", params={"skip": str(2**64)})
+    assert skipped.status_code == 422 and "skip" in skipped.text

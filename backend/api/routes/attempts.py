@@ -12,7 +12,7 @@ from backend.api.ranges import ranged_response
 from backend.api.responses import errors
 from backend.deps import BlobsDep, CallerDep, SessionDep, SettingsDep
 from backend.errors import Conflict, Invalid, NotFound
-from backend.schemas import PathId, QueryId
+from backend.schemas import DbId, PathId, QueryId
 from backend.services import attempts, robots, snapshots
 from core.robots import worker_drives
 
@@ -20,7 +20,7 @@ router = APIRouter(tags=["attempts"])
 
 CommandWord = Annotated[str, StringConstraints(min_length=1, max_length=100)]
 TaskId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="the task_id POST …/attempts answered")]
-Skipped = Annotated[list[int] | None, Query(max_length=100, description="attempts skipped this visit")]
+Skipped = Annotated[list[DbId] | None, Query(max_length=100, description="attempts skipped this visit")]
 MAX_ATTEMPTS = 100
 
 
@@ -136,9 +136,7 @@ def next_attempt(
     caller: CallerDep,
     session: SessionDep,
     robot_id: QueryId = None,
-    skip: Annotated[
-        list[int] | None, Query(max_length=100, description="attempts skipped this visit")
-    ] = None,
+    skip: Skipped = None,
 ) -> NextAttempt:
     """The next attempt to judge: its final view, the command the robot was given, its replay frames and the
     other commands a 'no' may name."""
