@@ -54,10 +54,13 @@ def free_port() -> int:
         return int(sock.getsockname()[1])
 
 
-def stack_environment(data_dir: Path, redis_socket: Path, **settings: str) -> dict[str, str]:
-    """This process's environment with a stack's data directory, its Redis and `settings` (VARBOT_… names)."""
+def stack_environment(
+    data_dir: Path, redis_socket: Path, inherited: Mapping[str, str] | None = None, **settings: str
+) -> dict[str, str]:
+    """`inherited` (default: this process's environment) with a stack's data directory, its Redis and
+    `settings` (VARBOT_… names)."""
     return {
-        **os.environ,
+        **(os.environ if inherited is None else inherited),
         "VARBOT_DATA_DIR": str(data_dir),
         "VARBOT_BROKER_URL": broker_url(redis_socket),
         "PYTHONUNBUFFERED": "1",
@@ -79,12 +82,15 @@ def throwaway_stack_environment(
     """`stack_environment` for a stack that lives only as long as a test session: the test environment, its
     own secret key and cheap password hashing, then `settings`. No VARBOT_ setting is inherited from this
     process: another test's stack may have set some (its base-model folder, say) and still be running."""
-    env = stack_environment(
-        data_dir, redis_socket, **THROWAWAY_STACK_SETTINGS, VARBOT_SECRET_KEY=secret_key, **settings
+    inherited = {key: value for key, value in os.environ.items() if not key.startswith("VARBOT_")}
+    return stack_environment(
+        data_dir,
+        redis_socket,
+        inherited,
+        **THROWAWAY_STACK_SETTINGS,
+        VARBOT_SECRET_KEY=secret_key,
+        **settings,
     )
-    chosen = {"VARBOT_DATA_DIR", "VARBOT_BROKER_URL", "VARBOT_SECRET_KEY", *THROWAWAY_STACK_SETTINGS}
-    chosen.update(settings)
-    return {key: value for key, value in env.items() if not key.startswith("VARBOT_") or key in chosen}
 
 
 def varbot_argv(*args: str) -> list[str]:

@@ -312,6 +312,9 @@ def console() -> ConsoleWatch:
     return ConsoleWatch()
 
 
+SCENE_VIEWPORT = {"width": 960, "height": 640}  # the 3D scene's modules: less software WebGL to draw
+
+
 def viewport_of(request: pytest.FixtureRequest) -> dict[str, int]:
     """The test module's `PAGE_VIEWPORT`, else a laptop's. The 3D scene's modules choose a smaller one:
     Chromium renders the scene's WebGL in software here, and its cost grows with the pixels drawn."""

@@ -15,6 +15,7 @@ import viser
 import websockets.sync.client
 from browser_helpers import (
     ARTIFACTS,
+    SCENE_VIEWPORT,
     Stack,
     activate_untrained_model,
     sign_in,
@@ -30,7 +31,7 @@ VISER_PROTOCOL = f"viser-v{viser.__version__}"  # the viewer's subprotocol: Vise
 CAMERA_UPDATES = 20  # new camera images the browser must receive (and the frame rate is measured over)
 
 pytestmark = pytest.mark.browser
-PAGE_VIEWPORT = {"width": 960, "height": 640}  # less software WebGL to draw (`browser_helpers.viewport_of`)
+PAGE_VIEWPORT = SCENE_VIEWPORT  # `browser_helpers.viewport_of`
 
 
 @pytest.fixture(scope="module")

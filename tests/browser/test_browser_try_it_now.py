@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from browser_helpers import (
     ARTIFACTS,
+    SCENE_VIEWPORT,
     Stack,
     activate_untrained_model,
     open_page,
@@ -24,7 +25,7 @@ from playwright.sync_api import TimeoutError as PlaywrightTimeout
 from test_browser_pages import keep_holding
 
 pytestmark = pytest.mark.browser
-PAGE_VIEWPORT = {"width": 960, "height": 640}  # less software WebGL to draw (`browser_helpers.viewport_of`)
+PAGE_VIEWPORT = SCENE_VIEWPORT  # `browser_helpers.viewport_of`
 
 TIMINGS = ARTIFACTS / "try-it-now.json"
 FINISHED = ("done", "refused", "failed")
