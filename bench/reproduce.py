@@ -90,7 +90,7 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument(
         "--var-front-end",
         default="mfcc",
-        help="sound front end of a VAR trained here: mfcc or speech-embedding",
+        help="sound front end of a VAR trained here: mfcc, speech-embedding or speech-embedding-fast",
     )
     parser.add_argument(
         "--var-room-copies", type=int, default=0, help="train the VAR with this many simulated-room copies"

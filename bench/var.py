@@ -45,7 +45,9 @@ def parse_arguments() -> argparse.Namespace:
         help="torch threads; on a 2-core machine with other work running 1 is far faster",
     )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--front-end", default="mfcc", help="sound front end: mfcc or speech-embedding")
+    parser.add_argument(
+        "--front-end", default="mfcc", help="sound front end: mfcc, speech-embedding or speech-embedding-fast"
+    )
     parser.add_argument(
         "--room-copies", type=int, default=0, help="simulated-room copies of every training clip"
     )

@@ -4,9 +4,11 @@ simulated rooms.
     nice -n 10 .venv/bin/python bench/voices.py          # ~20-40 min on the shared 2-core machine
     nice -n 10 .venv/bin/python bench/voices.py --runs wordset-multilingual:speech-embedding:2 --steps 2000
 
-A run is SET:FRONT_END:ROOM_COPIES: a small VAR trained on the same Kuka views (intent k = slot k for every
-set) with the set's training clips plus ROOM_COPIES recordings of each in simulated training rooms
-(`varbot var train --room-copies`). Each run is scored on each of its set's unheard tiers:
+A run is SET:FRONT_END:ROOM_COPIES[:SPEED_COPIES[:VOICE_COPIES]]: a small VAR trained on the same Kuka views
+(intent k = slot k for every set) with the set's training clips plus ROOM_COPIES recordings of each in
+simulated training rooms (`varbot var train --room-copies`), SPEED_COPIES played faster or slower and
+VOICE_COPIES with the formants moved (`--speed-copies`, `--voice-copies`). Each run is scored on each of
+its set's unheard tiers:
 - nearest-command accuracy: a clip's f_S embedding nearest the mean direction of its own command among the
   training clips (what a goal clip must do for the policy to head for the right block);
 - triplet accuracy on held-out views (another seed), as `varbot var eval` reports it; image -> command.
@@ -39,12 +41,14 @@ from tqdm import tqdm
 RESULTS = Path(__file__).resolve().parent / "results"
 OUTPUT = RESULTS / "voices.json"
 WORLD = "kuka"
-FRONT_ENDS = ("mfcc", "speech-embedding")
+FRONT_ENDS = ("mfcc", "speech-embedding", "speech-embedding-fast")
 DEFAULT_RUNS = (
     "wordset-multilingual:speech-embedding:2:2",
+    "wordset-multilingual:speech-embedding-fast:2:2",
     "wordset-multilingual:speech-embedding:2",
     "wordset-multilingual:mfcc:2",
     "wordset:speech-embedding:2",
+    "wordset:speech-embedding-fast:2",
     "wordset:mfcc:2",
     "notes:speech-embedding:0",
     "notes:mfcc:0",
@@ -63,6 +67,7 @@ class Run:
     front_end: str
     room_copies: int
     speed_copies: int = 0
+    voice_copies: int = 0
 
     @classmethod
     def parse(cls, text: str) -> "Run":
@@ -71,20 +76,21 @@ class Run:
 
         try:
             sounds, front_end, *copies = text.split(":")
-            if len(copies) not in (1, 2):
-                raise ValueError("one or two numbers of copies")
+            if len(copies) not in (1, 2, 3):
+                raise ValueError("one to three numbers of copies")
             counts = [int(count) for count in copies]
             run = cls(sound_set(sounds).name, check_front_end(front_end), *counts)
         except ValueError as error:
             raise SystemExit(
-                f"--runs: {text!r} is not SET:FRONT_END:ROOM_COPIES[:SPEED_COPIES] ({error})"
+                f"--runs: {text!r} is not SET:FRONT_END:ROOM_COPIES[:SPEED_COPIES[:VOICE_COPIES]] ({error})"
             ) from None
         return run
 
     @property
     def key(self) -> str:
         speed = f":speed{self.speed_copies}" if self.speed_copies else ""
-        return f"{self.sounds}:{self.front_end}:rooms{self.room_copies}{speed}"
+        voice = f":voice{self.voice_copies}" if self.voice_copies else ""
+        return f"{self.sounds}:{self.front_end}:rooms{self.room_copies}{speed}{voice}"
 
 
 def parse_arguments() -> argparse.Namespace:
@@ -107,6 +113,7 @@ def run_dir(run: Run, args: argparse.Namespace) -> Path:
     from core.paths import data_subdir
 
     speed = f"-speed{run.speed_copies}" if run.speed_copies else ""
+    speed += f"-voice{run.voice_copies}" if run.voice_copies else ""
     name = (
         f"{run.sounds}-{run.front_end}-rooms{run.room_copies}{speed}-{args.views}views-{args.image_size}px-"
         f"{args.steps}steps-seed{args.seed}"
@@ -133,7 +140,7 @@ def start_training(run: Run, train_views, args: argparse.Namespace):
     command = [
         str(Path(sys.executable).with_name("varbot")), "var", "train", str(train_views.path),
         "--sounds", run.sounds, "--front-end", run.front_end, "--room-copies", str(run.room_copies),
-        "--speed-copies", str(run.speed_copies),
+        "--speed-copies", str(run.speed_copies), "--voice-copies", str(run.voice_copies),
         "--run-dir", str(folder), "--max-steps", str(args.steps), "--batch-size", str(args.batch_size),
         "--threads", "1", "--seed", str(args.seed),
     ]  # fmt: skip
@@ -202,6 +209,7 @@ def score_run(run: Run, corpus, test_views, args: argparse.Namespace) -> dict:
         "front_end": run.front_end,
         "room_copies": run.room_copies,
         "speed_copies": run.speed_copies,
+        "voice_copies": run.voice_copies,
         "tiers": tiers,
         "image_to_command": evaluation["image_to_command"],
         "training_seconds": training_seconds(run, args),
@@ -269,6 +277,7 @@ def print_tables(result: dict, output: str | Path) -> None:
         table.add_column("train s", justify="right")
         for run in runs.values():
             speed = f", {run['speed_copies']} speed copies" if run.get("speed_copies") else ""
+            speed += f", {run['voice_copies']} voice copies" if run.get("voice_copies") else ""
             cells = [f"{run['front_end']}, {run['room_copies']} room copies{speed}"]
             for tier in tiers:
                 scores = run["tiers"][tier]

@@ -2,8 +2,8 @@
 
 decode (soundfile) → mono → 16 kHz (torchaudio) → trim leading/trailing silence → cut to the window the
 feature kind covers → peak-normalise → the sound front end → pad with all-zero frames.
-Front ends (learning.front_ends): `mfcc` (the default, the paper's: 100 × 40 MFCC by torchaudio) and
-`speech-embedding` (frames × 96 of Google's speech_embedding model).
+Front ends (learning.front_ends): `mfcc` (the default, the paper's: 100 × 40 MFCC by torchaudio),
+`speech-embedding` and `speech-embedding-fast` (frames × 96 of Google's speech_embedding model).
 An all-zero frame means "no sound", so all zeros (`SILENCE` for MFCC) is the feature of nothing heard.
 """
 
@@ -121,7 +121,7 @@ def feature_shape(kind: str = "speech", front_end: str = DEFAULT_FRONT_END) -> t
         return NUM_FRAMES, NUM_COEFFICIENTS
     from learning.front_ends import speech_embedding
 
-    return speech_embedding.frames_for(spec.max_samples), speech_embedding.EMBEDDING_DIM
+    return speech_embedding.frames_for(spec.max_samples, front_end), speech_embedding.EMBEDDING_DIM
 
 
 def silence(kind: str = "speech", front_end: str = DEFAULT_FRONT_END) -> np.ndarray:
@@ -152,7 +152,7 @@ def features_from_waveform(
     from learning.front_ends import speech_embedding
 
     features = np.zeros(shape, dtype=np.float32)
-    frames = speech_embedding.embed(sound)
+    frames = speech_embedding.embed(sound, front_end)
     features[: len(frames)] = frames
     return features
 

@@ -1,7 +1,8 @@
 """Training-time augmentation, batched on tensors and driven by one seeded `torch.Generator`.
 
-Waveforms (B, T) at 16 kHz: speed perturbation (tempo and pitch together, as `sox speed`), time shift,
-background noise at a random SNR, gain. Features (B, 100, 40) MFCC: gain, frame shift and SpecAugment masks.
+Waveforms (B, T) at 16 kHz: speed perturbation (tempo and pitch together, as `sox speed`), vocal tract
+length warping (the spectral envelope's formants moved, pitch and tempo kept), time shift, background noise
+at a random SNR, gain. Features (B, 100, 40) MFCC: gain, frame shift and SpecAugment masks.
 Frozen embedding frames (B, frames, values) of the speech-embedding front end: frame dropout and noise.
 Every function returns a new tensor of the input's shape and dtype; all-zero MFCC frames ("no sound")
 stay zero.
@@ -99,6 +100,44 @@ def perturb_speed(
     factors = _uniform(generator, batch, speed, waves)
     positions = torch.arange(length, device=waves.device, dtype=waves.dtype)[None, :] * factors[:, None]
     return _sample_at(waves, positions)
+
+
+def warp_vocal_tract(
+    waves: torch.Tensor, generator: torch.Generator, warp: tuple[float, float], n_fft: int = 512
+) -> torch.Tensor:
+    """Move each row's formants by a factor drawn from `warp` (above 1: a shorter vocal tract), keeping its
+    pitch and timing: the spectral envelope (low-quefrency cepstrum of each STFT frame) is stretched along
+    frequency; the harmonics (the rest of the log spectrum) and the phases stay where they were."""
+    batch, length = waves.shape
+    factors = _uniform(generator, batch, warp, waves)
+    window = torch.hann_window(n_fft, device=waves.device, dtype=waves.dtype)
+    spectrum = torch.stft(waves, n_fft, n_fft // 4, window=window, return_complex=True)  # (B, F, frames)
+    log_magnitude = torch.log(spectrum.abs() + 1e-7)
+    envelope = _spectral_envelope(log_magnitude, n_fft)
+    bins = spectrum.shape[1]
+    source_bins = torch.arange(bins, device=waves.device, dtype=waves.dtype)[None, :] / factors[:, None]
+    warped = _interpolate_bins(envelope, source_bins.clamp(max=bins - 1))
+    magnitude = torch.exp(warped + log_magnitude - envelope)
+    warped_spectrum = torch.polar(magnitude, spectrum.angle())
+    return torch.istft(warped_spectrum, n_fft, n_fft // 4, window=window, length=length)
+
+
+def _spectral_envelope(log_magnitude: torch.Tensor, n_fft: int, lifter: int = 30) -> torch.Tensor:
+    """The smooth part of each frame's log spectrum (B, F, frames): its first `lifter` cepstral terms."""
+    cepstrum = torch.fft.irfft(log_magnitude, n=n_fft, dim=1)
+    cepstrum[:, lifter : n_fft - lifter + 1] = 0
+    return torch.fft.rfft(cepstrum, dim=1).real
+
+
+def _interpolate_bins(values: torch.Tensor, positions: torch.Tensor) -> torch.Tensor:
+    """values (B, F, frames) read at fractional bins `positions` (B, F), linearly."""
+    left = positions.floor().long()
+    right = (left + 1).clamp(max=values.shape[1] - 1)
+    fraction = (positions - left.to(positions.dtype))[:, :, None]
+    frames = values.shape[2]
+    low = torch.gather(values, 1, left[:, :, None].expand(-1, -1, frames))
+    high = torch.gather(values, 1, right[:, :, None].expand(-1, -1, frames))
+    return low + (high - low) * fraction
 
 
 def shift_time(waves: torch.Tensor, generator: torch.Generator, max_shift: int) -> torch.Tensor:

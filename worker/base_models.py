@@ -208,6 +208,75 @@ def build_base(
     return record
 
 
+def refit_base(
+    world: str,
+    front_end: str,
+    out_root: Path,
+    extra_sounds: Sequence[str] = (),
+    eval_episodes_per_intent: int | None = None,
+    progress: bool = True,
+    **refit_settings: Any,
+) -> dict[str, Any]:
+    """A world's base model moved to another sound front end (`learning.var.refit`): the same policy and f_I,
+    f_S taught to agree with the old one, evaluated again in the rooms of its record with the same seed,
+    written to `out_root/<world>/` with its record (the one before kept under `before_refit`).
+    `refit_settings`: RefitConfig's steps, room_copies... Households
+    whose VAR was fine-tuned from the old base keep it: its checkpoint names its own front end."""
+    from learning.var.checkpoint import load_var, read_checkpoint, save_var
+    from learning.var.refit import RefitConfig, refit_front_end
+
+    base = find_base(world)
+    before = base.record
+    recipe = before.get("recipe", {})
+    teacher_payload = read_checkpoint(base.var_path)
+    teacher = load_var(base.var_path)
+    config = RefitConfig(
+        front_end=front_end, sounds=before.get("sounds", "wordset"), extra_sounds=tuple(extra_sounds),
+        **refit_settings,
+    )  # fmt: skip
+    result = refit_front_end(teacher, config, progress=progress)
+    staging = out_root / f".{world}.refit"
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    extra = {
+        key: teacher_payload[key] for key in ("manifest_hash", "sound_set", "world") if key in teacher_payload
+    }
+    save_var(result.var, staging / "var.pt", **extra, refit=result.report)
+    for name in ("policy.pt", "policy_curves.png", "var_curves.png"):
+        if (base.folder / name).is_file():
+            shutil.copy(base.folder / name, staging / name)
+    episodes = eval_episodes_per_intent or int(recipe.get("eval_episodes_per_intent", 25))
+    evaluation = evaluate_in_rooms(
+        staging / "var.pt", staging / "policy.pt", recipe.get("eval_rooms", [TRAINING_ROOM, *HELD_OUT_ROOMS]),
+        episodes_per_intent=episodes, seed=int(recipe.get("seed", 0)) + 999, progress=progress,
+    )  # fmt: skip
+    record = {
+        **{key: value for key, value in before.items() if key not in ("evaluation", "before_refit")},
+        "front_end": front_end,
+        "evaluation": evaluation,
+        "refit": {
+            **result.report,
+            "command": " ".join(["varbot", "models", "refit-front-end", *sys.argv[3:]])
+            if "refit-front-end" in sys.argv
+            else None,
+            "refitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        },
+        "before_refit": {
+            "front_end": before.get("front_end", "mfcc"),
+            "evaluation": before.get("evaluation"),
+            "folder": str(
+                base.folder.relative_to(REPO_ROOT) if base.folder.is_relative_to(REPO_ROOT) else base.folder
+            ),
+        },
+    }
+    sizes = {name: (staging / name).stat().st_size for name in ("var.pt", "policy.pt")}
+    (staging / RECORD).write_text(json.dumps({**record, "file_bytes": sizes}, indent=2) + "\n")
+    folder = out_root / world
+    shutil.rmtree(folder, ignore_errors=True)
+    staging.rename(folder)
+    return record
+
+
 def evaluate_in_rooms(
     var_path: Path,
     policy_path: Path,

@@ -1,4 +1,4 @@
-"""`varbot worker --queue training|robot` and `varbot models build-base|adopt|show`.
+"""`varbot worker --queue training|robot` and `varbot models build-base|adopt|refit-front-end|show`.
 
 Heavy imports happen inside the commands."""
 
@@ -57,7 +57,7 @@ def build_base(
     world: Annotated[str, typer.Option(help="kuka, kinova or turtlebot")] = "kuka",
     sounds: Annotated[str, typer.Option(help="sound corpus (built with `varbot sounds build`)")] = "wordset",
     front_end: Annotated[
-        str, typer.Option(help="the VAR's sound front end: mfcc or speech-embedding")
+        str, typer.Option(help="the VAR's sound front end: mfcc, speech-embedding or speech-embedding-fast")
     ] = "mfcc",
     room: Annotated[
         str, typer.Option(help="randomised (a room per episode from core.rooms.RoomRanges) or training")
@@ -146,6 +146,44 @@ def adopt(
     typer.echo(f"{world}: base model written to {folder}")
 
 
+@models_app.command("refit-front-end")
+def refit_front_end(
+    world: Annotated[str, typer.Option(help="kuka, kinova or turtlebot")],
+    front_end: Annotated[str, typer.Option(help="the new sound front end, e.g. speech-embedding-fast")],
+    extra_sounds: Annotated[
+        str, typer.Option(help="comma-separated corpora whose training clips teach f_S too (no labels used)")
+    ] = "",
+    eval_episodes_per_intent: Annotated[
+        int | None, typer.Option(min=1, help="default: the base model's own recipe's")
+    ] = None,
+    steps: Annotated[int, typer.Option(min=1, help="optimiser steps teaching the new sound encoder")] = 3000,
+    room_copies: Annotated[
+        int, typer.Option(min=0, help="recordings of every teaching clip in simulated rooms")
+    ] = 2,
+    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+) -> None:
+    """Move a world's base model to another sound front end: the same policy and image encoder, the sound
+    encoder taught to agree with the old one; evaluated again in every room of its record."""
+    import json
+
+    from core.paths import data_dir
+    from learning.front_ends import check_front_end
+    from worker.base_models import BaseModelMissing, refit_base
+
+    try:
+        check_front_end(front_end)
+        record = refit_base(
+            world, front_end, out or data_dir() / "base_models",
+            [name for name in extra_sounds.split(",") if name], eval_episodes_per_intent,
+            steps=steps, room_copies=room_copies,
+        )  # fmt: skip
+    except (ValueError, BaseModelMissing) as refused:
+        raise typer.BadParameter(str(refused)) from None
+    typer.echo(
+        json.dumps({"refit": record["refit"]["agreement"], "evaluation": record["evaluation"]}, indent=2)
+    )
+
+
 @models_app.command("show")
 def show() -> None:
     """Which base model each simulated world would start from."""
@@ -158,6 +196,9 @@ def show() -> None:
             made = record.get("built_at") or ("adopted" if "adopted_from" in record else "no record")
             rooms = record.get("recipe", {}).get("room", "training")
             front_end = record.get("front_end", "mfcc")
+            if "refit" in record:
+                refitted = record["refit"].get("refitted_at", "")
+                front_end += f", refitted {refitted} from {record['before_refit']['front_end']}"
             typer.echo(f"{world}: {base.folder} ({made}; trained in rooms: {rooms}; front end: {front_end})")
         except BaseModelMissing as missing:
             typer.echo(f"{world}: {missing}")

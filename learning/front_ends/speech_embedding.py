@@ -15,7 +15,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from learning.front_ends import SPEECH_EMBEDDING, VALUES_PER_FRAME
+from learning.front_ends import EDGE_PAD_SAMPLES, SPEECH_EMBEDDING, VALUES_PER_FRAME
 from learning.front_ends.tflite import Interpreter, wheel_file
 
 EMBEDDING_DIM = VALUES_PER_FRAME[SPEECH_EMBEDDING]
@@ -25,21 +25,21 @@ MEL_HOP_SAMPLES = 160  # 10 ms at 16 kHz
 WINDOW_MELS = 76  # one embedding sees 76 mel frames (775 ms)
 STEP_MELS = 8  # and the next starts 80 ms later
 INT16_SCALE = 32767.0  # the models were trained on 16-bit sample values
-EDGE_PAD_SAMPLES = 5120  # 320 ms of silence before and after, so the first and last windows see the edges
 MIN_SAMPLES = MEL_WINDOW_SAMPLES + (WINDOW_MELS - 1) * MEL_HOP_SAMPLES  # one whole embedding window
 _lock = threading.Lock()  # one interpreter pair per process; TFLite interpreters are not thread-safe
 
 
-def frames_for(samples: int) -> int:
+def frames_for(samples: int, front_end: str = SPEECH_EMBEDDING) -> int:
     """How many embedding frames a sound of `samples` samples (before padding) gives."""
-    mels = 1 + (samples + 2 * _padding(samples) - MEL_WINDOW_SAMPLES) // MEL_HOP_SAMPLES
+    padded = samples + sum(_padding(samples, front_end))
+    mels = 1 + (padded - MEL_WINDOW_SAMPLES) // MEL_HOP_SAMPLES
     return 1 + (mels - WINDOW_MELS) // STEP_MELS
 
 
-def embed(sound: np.ndarray) -> np.ndarray:
-    """A trimmed, peak-normalised 16 kHz float waveform in [-1, 1] → float32 (frames_for(len), 96)."""
-    padding = _padding(len(sound))
-    padded = np.pad(np.asarray(sound, dtype=np.float32) * INT16_SCALE, (padding, padding))
+def embed(sound: np.ndarray, front_end: str = SPEECH_EMBEDDING) -> np.ndarray:
+    """A trimmed, peak-normalised 16 kHz float waveform in [-1, 1] → float32 (frames_for(len), 96).
+    `front_end`: speech-embedding or speech-embedding-fast, which differ only in the edge padding."""
+    padded = np.pad(np.asarray(sound, dtype=np.float32) * INT16_SCALE, _padding(len(sound), front_end))
     mel_model, embedding_model = _models()
     with _lock:
         mels = mel_model.run(padded[None]).reshape(-1, MEL_BINS) / 10 + 2  # the wheel's rescaling
@@ -49,9 +49,15 @@ def embed(sound: np.ndarray) -> np.ndarray:
     return embeddings.reshape(len(starts), EMBEDDING_DIM)
 
 
-def _padding(samples: int) -> int:
-    """Silence on each side: the edge pad, or more for a sound shorter than one window."""
-    return max(EDGE_PAD_SAMPLES, -(-(MIN_SAMPLES - samples) // 2))
+def _padding(samples: int, front_end: str) -> tuple[int, int]:
+    """Silence before and after: the front end's edge pads, and what a sound shorter than one window lacks,
+    half on each side where both edges are padded (the full front end), else after it (so that the fast
+    front end's windows stay the full one's first windows)."""
+    before, after = EDGE_PAD_SAMPLES[front_end]
+    lacking = max(0, MIN_SAMPLES - samples - before - after)
+    if after:
+        return before + -(-lacking // 2), after + -(-lacking // 2)
+    return before, lacking
 
 
 @lru_cache(maxsize=1)

@@ -15,7 +15,7 @@ from learning.front_ends import MFCC, check_front_end
 from learning.sounds.build import FEATURES as MFCC_FEATURES
 
 # Bump when a front end's featurisation changes, so that stale caches are recomputed.
-FRONT_END_VERSIONS = {"speech-embedding": 1}
+FRONT_END_VERSIONS = {"speech-embedding": 1, "speech-embedding-fast": 1}
 
 
 def features_file(front_end: str) -> str:

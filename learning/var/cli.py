@@ -113,7 +113,10 @@ def train(
     margin: float = 1.0,
     embedding_dim: int = 3,
     front_end: Annotated[
-        str, typer.Option(help="Sound front end of f_S: mfcc (the paper's) or speech-embedding.")
+        str,
+        typer.Option(
+            help="Sound front end of f_S: mfcc (the paper's), speech-embedding or speech-embedding-fast."
+        ),
     ] = "mfcc",
     augment: bool = True,
     speed_copies: Annotated[
@@ -129,6 +132,16 @@ def train(
             "background noise, a cheap microphone)."
         ),
     ] = 0,
+    voice_copies: Annotated[
+        int,
+        typer.Option(
+            help="Add this many renderings of every training clip with its formants moved (another vocal "
+            "tract at the same pitch and tempo)."
+        ),
+    ] = 0,
+    voice_range: Annotated[
+        str, typer.Option(help="Formant warp range of those copies, MIN,MAX.")
+    ] = "0.85,1.15",
     speakers: Annotated[
         str | None, typer.Option(help="Comma-separated speakers to train on (default: all of the split).")
     ] = None,
@@ -156,8 +169,10 @@ def train(
             augment=augment,
             sound_speakers=tuple(speakers.split(",")) if speakers else None,
             sound_speed_copies=speed_copies,
-            sound_speed_range=_speed_range(speed_range),
+            sound_speed_range=_factor_range(speed_range, "--speed-range"),
             sound_room_copies=room_copies,
+            sound_voice_copies=voice_copies,
+            sound_voice_range=_factor_range(voice_range, "--voice-range"),
             seed=seed,
             threads=threads,
         )
@@ -221,13 +236,13 @@ def finetune(
     _report(result)
 
 
-def _speed_range(text: str) -> tuple[float, float]:
+def _factor_range(text: str, option: str) -> tuple[float, float]:
     try:
         low, high = (float(part) for part in text.split(","))
     except ValueError:
-        raise ValueError(f"--speed-range must be MIN,MAX (e.g. 0.85,1.15), got {text!r}") from None
+        raise ValueError(f"{option} must be MIN,MAX (e.g. 0.85,1.15), got {text!r}") from None
     if not 0.5 <= low <= high <= 2.0:
-        raise ValueError(f"--speed-range must satisfy 0.5 ≤ MIN ≤ MAX ≤ 2, got {text!r}")
+        raise ValueError(f"{option} must satisfy 0.5 ≤ MIN ≤ MAX ≤ 2, got {text!r}")
     return low, high
 
 

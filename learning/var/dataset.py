@@ -12,7 +12,7 @@ import multiprocessing
 import queue
 import time
 import traceback
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -284,29 +284,39 @@ class SoundBank:
         speed_range: tuple[float, float] = (0.85, 1.15),
         seed: int = 0,
         room_copies: int = 0,
+        voice_copies: int = 0,
+        voice_range: tuple[float, float] = (0.85, 1.15),
     ) -> "SoundBank":
         """The clips of these splits (and speakers), plus `speed_copies` re-renderings of each, played faster
-        or slower (tempo, pitch and formants together, as a longer or shorter vocal tract would), for voices
-        training never heard, and `room_copies` recordings of each in simulated rooms (reverberation, noise,
-        a cheap microphone: learning.room_acoustics), for rooms it never heard. Speed copies are refused for
-        sets whose commands may be pitches (notes)."""
+        or slower (tempo, pitch and formants together), and `voice_copies` with only the formants moved (a
+        longer or shorter vocal tract at the same pitch and tempo), for voices training never heard, and
+        `room_copies` recordings of each in simulated rooms (reverberation, noise, a cheap microphone:
+        learning.room_acoustics), for rooms it never heard. Speed and voice copies are refused for sets
+        whose commands may be pitches or timbres (notes)."""
         chosen = corpus.subset(list(splits) if not isinstance(splits, str) else splits)
         if speakers:
             chosen = chosen.by_speakers(speakers)
             if not len(chosen.intent):
                 raise DatasetError(f"No clip by speaker(s) {list(speakers)} in splits {splits}.")
         features, intent = chosen.features, chosen.intent
+        if (speed_copies or voice_copies) and corpus.kind not in ("speech", "phrase"):
+            raise DatasetError(
+                f"Speed and voice copies change pitch or timbre, and {corpus.name} is a '{corpus.kind}' "
+                "set whose commands may be pitches or timbres: train it without --speed-copies and "
+                "--voice-copies."
+            )
         if speed_copies:
-            if corpus.kind not in ("speech", "phrase"):
-                raise DatasetError(
-                    f"Speed copies change pitch, and {corpus.name} is a '{corpus.kind}' set whose commands "
-                    "may be pitches: train it without --speed-copies."
-                )
-            copies = speed_perturbed_features(
-                chosen.clip, corpus.kind, speed_copies, speed_range, seed, corpus.front_end
+            copies = perturbed_features(
+                chosen.clip, corpus.kind, speed_copies, "speed", speed_range, seed, corpus.front_end
             )
             features = np.concatenate([features, copies])
             intent = np.concatenate([intent, np.repeat(chosen.intent, speed_copies)])
+        if voice_copies:
+            copies = perturbed_features(
+                chosen.clip, corpus.kind, voice_copies, "voice", voice_range, seed, corpus.front_end
+            )
+            features = np.concatenate([features, copies])
+            intent = np.concatenate([intent, np.repeat(chosen.intent, voice_copies)])
         if room_copies:
             copies = room_recorded_features(chosen.clip, corpus.kind, room_copies, seed, corpus.front_end)
             features = np.concatenate([features, copies])
@@ -327,27 +337,43 @@ class SoundBank:
         return out
 
 
-def speed_perturbed_features(
+# Voice copies draw their warps from a stream apart from the speed copies' (whose seed is the run's)
+VOICE_COPY_STREAM = 5
+
+
+def perturbed_features(
     paths: np.ndarray,
     kind: str,
     copies: int,
-    speed: tuple[float, float],
+    perturbation: str,
+    factors: tuple[float, float],
     seed: int,
     front_end: str = "mfcc",
 ) -> np.ndarray:
-    """Features of `copies` speed-perturbed renderings of every clip, clip by clip (rows c·copies..)."""
+    """Features of `copies` renderings of every clip, clip by clip (rows c·copies..), each with a factor drawn
+    from `factors`: "speed" plays it faster or slower (tempo, pitch and formants together), "voice" moves
+    its formants only (learning.augment's vocal tract warp: pitch and tempo kept)."""
     import torch
 
-    from learning.augment import perturb_speed
+    from learning.augment import perturb_speed, warp_vocal_tract
 
-    generator = torch.Generator().manual_seed(seed)
+    if perturbation == "speed":
+        generator = torch.Generator().manual_seed(seed)
+    elif perturbation == "voice":
+        generator = torch.Generator().manual_seed(seed * 1_000 + VOICE_COPY_STREAM)
+    else:
+        raise ValueError(f"Unknown perturbation {perturbation!r}: use speed or voice.")
 
-    def speed_copies(waveform: np.ndarray) -> list[np.ndarray]:
-        slowed_length = math.ceil(len(waveform) / min(speed[0], 1.0)) + 1  # room for the slowest copy
+    def renderings(waveform: np.ndarray) -> list[np.ndarray]:
+        if perturbation == "voice":
+            rows = torch.from_numpy(np.ascontiguousarray(waveform)).repeat(copies, 1)
+            return list(warp_vocal_tract(rows, generator, factors).numpy())
+        slowed_length = math.ceil(len(waveform) / min(factors[0], 1.0)) + 1  # room for the slowest copy
         padded = np.pad(waveform, (0, slowed_length - len(waveform)))
-        return list(perturb_speed(torch.from_numpy(padded).repeat(copies, 1), generator, speed).numpy())
+        return list(perturb_speed(torch.from_numpy(padded).repeat(copies, 1), generator, factors).numpy())
 
-    return _features_of_copies(paths, kind, front_end, speed_copies, f"speed copies ×{copies}")
+    description = f"{perturbation} copies ×{copies}"
+    return _features_of_copies(paths, kind, (front_end,), renderings, description)[front_end]
 
 
 # Room copies draw their rooms from this stream, apart from the corpora's unheard-room tiers' streams.
@@ -358,6 +384,14 @@ def room_recorded_features(
     paths: np.ndarray, kind: str, copies: int, seed: int, front_end: str = "mfcc"
 ) -> np.ndarray:
     """Features of `copies` recordings of every clip in simulated rooms, clip by clip (rows c·copies..)."""
+    return room_recorded_features_in(paths, kind, copies, seed, (front_end,))[front_end]
+
+
+def room_recorded_features_in(
+    paths: np.ndarray, kind: str, copies: int, seed: int, front_ends: Sequence[str]
+) -> dict[str, np.ndarray]:
+    """`room_recorded_features` for several front ends at once: each room recording is made once and read
+    by every front end (the rooms, drawn in the same order, are those of a call with one front end)."""
     from learning.room_acoustics import record_in_room
 
     rng = np.random.default_rng([seed, ROOM_COPY_STREAM])
@@ -365,24 +399,29 @@ def room_recorded_features(
     def room_copies(waveform: np.ndarray) -> list[np.ndarray]:
         return [record_in_room(waveform, rng) for _ in range(copies)]
 
-    return _features_of_copies(paths, kind, front_end, room_copies, f"room copies ×{copies}")
+    return _features_of_copies(paths, kind, front_ends, room_copies, f"room copies ×{copies}")
 
 
 def _features_of_copies(
     paths: np.ndarray,
     kind: str,
-    front_end: str,
+    front_ends: Sequence[str],
     copies_of: Callable[[np.ndarray], list[np.ndarray]],
     description: str,
-) -> np.ndarray:
-    """Features of the waveforms `copies_of` makes from every clip, in clip order."""
+) -> dict[str, np.ndarray]:
+    """{front end: features of the waveforms `copies_of` makes from every clip, in clip order}."""
     from learning.audio import decode_audio, feature_shape, features_from_waveform
 
-    rows = []
+    rows: dict[str, list[np.ndarray]] = {name: [] for name in front_ends}
     for path in tqdm(paths, desc=description, unit="clip", leave=False):
         waveform, _ = decode_audio(Path(path).read_bytes())
-        rows += [features_from_waveform(copy, kind, front_end) for copy in copies_of(waveform)]
-    return np.stack(rows) if rows else np.zeros((0, *feature_shape(kind, front_end)), np.float32)
+        for copy in copies_of(waveform):
+            for name in front_ends:
+                rows[name].append(features_from_waveform(copy, kind, name))
+    return {
+        name: np.stack(found) if found else np.zeros((0, *feature_shape(kind, name)), np.float32)
+        for name, found in rows.items()
+    }
 
 
 def triplet_sound_ids(heard: np.ndarray, num_intents: int, rng: np.random.Generator):

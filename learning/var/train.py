@@ -47,6 +47,8 @@ class TrainConfig:
     sound_speed_copies: int = 0  # add this many speed-perturbed renderings of every clip to the bank
     sound_speed_range: tuple[float, float] = (0.85, 1.15)  # playback-rate factors of those copies
     sound_room_copies: int = 0  # add this many recordings of every clip in simulated rooms to the bank
+    sound_voice_copies: int = 0  # add this many renderings of every clip with its formants moved
+    sound_voice_range: tuple[float, float] = (0.85, 1.15)  # formant warp factors of those copies
     model: VARConfig = field(default_factory=VARConfig)  # image_size is taken from the dataset
     epochs: int = 12
     max_steps: int | None = None  # overrides epochs: the schedule length in optimiser steps
@@ -80,7 +82,7 @@ class TrainConfig:
     def from_dict(cls, data: dict[str, Any]) -> "TrainConfig":
         data = dict(data)
         data["model"] = VARConfig.from_dict(data.get("model", {}))
-        for key in ("sound_splits", "sound_speakers", "sound_speed_range"):
+        for key in ("sound_splits", "sound_speakers", "sound_speed_range", "sound_voice_range"):
             if data.get(key) is not None:
                 data[key] = tuple(data[key])
         return cls(**{k: v for k, v in data.items() if k in cls.__dataclass_fields__})
@@ -165,7 +167,8 @@ class _Trainer:
         train_rows, val_rows = _split_rows(len(images), config.val_fraction, config.seed)
         bank = SoundBank.from_corpus(
             corpus, config.sound_splits, config.sound_speakers, config.sound_speed_copies,
-            config.sound_speed_range, config.seed, config.sound_room_copies,
+            config.sound_speed_range, config.seed, config.sound_room_copies, config.sound_voice_copies,
+            config.sound_voice_range,
         )  # fmt: skip
         self.source = TripletSource(images, bank, train_rows, val_rows)
         self.replay = self._replay_source()

@@ -1,8 +1,11 @@
 """Training-time augmentation: batched, seeded, shape- and dtype-preserving, silence stays silence."""
 
+import math
+
 import numpy as np
 import pytest
 import torch
+import torchaudio
 
 from learning.audio import SILENCE
 from learning.augment import (
@@ -16,6 +19,7 @@ from learning.augment import (
     perturb_speed,
     shift_time,
     spec_augment,
+    warp_vocal_tract,
 )
 
 
@@ -73,6 +77,51 @@ def test_speed_one_is_the_identity_and_faster_speech_ends_earlier() -> None:
     assert not faster[:, -3000:].any()  # 1 s played 1.25× faster lasts 0.8 s
     spectrum = torch.fft.rfft(faster[-1, :12_000]).abs()
     assert int(spectrum.argmax()) * 16_000 / 12_000 == pytest.approx(400 * 1.25, abs=3)
+
+
+def vowel(formants_hz: tuple[float, ...], pitch_hz: float = 120.0) -> torch.Tensor:
+    """One second of a pulse train at `pitch_hz` through a two-pole resonance at each formant."""
+    pulses = torch.zeros(16_000, dtype=torch.float64)
+    pulses[:: round(16_000 / pitch_hz)] = 1.0
+    sound = pulses
+    for formant in formants_hz:
+        radius = math.exp(-math.pi * 100 / 16_000)
+        angle = 2 * math.pi * formant / 16_000
+        b = torch.tensor([1 - radius, 0.0, 0.0], dtype=torch.float64)
+        a = torch.tensor([1.0, -2 * radius * math.cos(angle), radius**2], dtype=torch.float64)
+        sound = torchaudio.functional.lfilter(sound, a, b, clamp=False)
+    return (sound / sound.abs().max()).float()[None]
+
+
+def formant_peaks(wave: torch.Tensor) -> tuple[float, float]:
+    """The smoothed spectrum's peak below and above 1.2 kHz, in Hz."""
+    spectrum = torch.fft.rfft(wave[0, 4_000:12_000] * torch.hann_window(8_000)).abs()
+    smooth = torch.nn.functional.avg_pool1d(spectrum[None, None], 151, 1, 75)[0, 0]
+    hz_per_bin = 16_000 / 8_000
+    split = int(1_200 / hz_per_bin)
+    return float(smooth[:split].argmax()) * hz_per_bin, (
+        split + float(smooth[split:1_500].argmax())
+    ) * hz_per_bin
+
+
+def pitch_hz(wave: torch.Tensor) -> float:
+    frame = wave[0, 4_000:6_000]
+    correlation = torch.stack([(frame[:-lag] * frame[lag:]).sum() for lag in range(60, 400)])
+    return 16_000 / (60 + int(correlation.argmax()))
+
+
+def test_a_vocal_tract_warp_moves_the_formants_and_keeps_the_pitch() -> None:
+    """A vowel with formants at 700 and 1,800 Hz and a 120 Hz pitch: warped by 1.2 its formants move up by
+    about a fifth, warped by 0.85 down, and its pitch stays; a warp of 1 gives the sound back."""
+    sound = vowel((700.0, 1_800.0))
+    torch.testing.assert_close(warp_vocal_tract(sound, generator(), (1.0, 1.0)), sound, atol=1e-5, rtol=0)
+    first, second = formant_peaks(sound)
+    for factor in (1.2, 0.85):
+        warped = warp_vocal_tract(sound, generator(), (factor, factor))
+        moved_first, moved_second = formant_peaks(warped)
+        assert moved_first == pytest.approx(first * factor, rel=0.06)
+        assert moved_second == pytest.approx(second * factor, rel=0.06)
+        assert pitch_hz(warped) == pytest.approx(pitch_hz(sound), rel=0.02)
 
 
 def test_time_shift_moves_the_sound_and_fills_with_zeros() -> None:

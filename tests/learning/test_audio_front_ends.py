@@ -24,6 +24,7 @@ from learning.sounds.build import build_corpora
 from learning.sounds.features import features_file
 
 EMBEDDING = "speech-embedding"
+FAST_EMBEDDING = "speech-embedding-fast"
 
 
 def spoken(text: str, variant: str = "m3", pitch: int = 50) -> bytes:
@@ -44,6 +45,29 @@ def test_speech_embedding_frames_are_96_values_every_80_ms_over_the_kinds_window
     assert speech_embedding.frames_for(FEATURE_KINDS[kind].max_samples) == frames
 
 
+@pytest.mark.parametrize(("kind", "frames"), [("speech", 7), ("phrase", 32), ("sound", 44)])
+def test_the_fast_speech_embedding_pads_only_before_the_clip_and_so_embeds_fewer_windows(
+    kind, frames
+) -> None:
+    """The same 775 ms windows 80 ms apart, over 320 ms of silence and the kind's window: a 1 s clip costs
+    7 embedding windows instead of 11."""
+    assert feature_shape(kind, FAST_EMBEDDING) == (frames, 96)
+    assert speech_embedding.frames_for(FEATURE_KINDS[kind].max_samples, FAST_EMBEDDING) == frames
+
+
+@pytest.mark.parametrize("samples", [16_000, 9_000, 4_000])
+def test_the_fast_front_ends_frames_are_the_full_ones_less_the_windows_reaching_into_trailing_silence(
+    samples,
+) -> None:
+    """Both put 320 ms of silence before the clip, so the fast front end's windows are the full one's
+    first windows, value for value, for long and short sounds (a short one is filled out after its end)."""
+    sound = np.random.default_rng(1).uniform(-0.3, 0.3, samples).astype(np.float32)
+    full = speech_embedding.embed(sound, EMBEDDING)
+    fast = speech_embedding.embed(sound, FAST_EMBEDDING)
+    assert len(fast) == speech_embedding.frames_for(samples, FAST_EMBEDDING) < len(full)
+    np.testing.assert_allclose(fast, full[: len(fast)], atol=1e-6)
+
+
 def test_a_word_gives_one_embedding_frame_per_80_ms_and_zero_frames_after_it() -> None:
     waveform, _ = decode_audio(spoken("zero"))
     features = features_from_waveform(waveform, "speech", EMBEDDING)
@@ -57,7 +81,7 @@ def test_a_word_gives_one_embedding_frame_per_80_ms_and_zero_frames_after_it() -
 
 def test_silence_is_all_zero_features_for_every_front_end() -> None:
     quiet = np.zeros(16_000, dtype=np.float32)
-    for front_end in ("mfcc", EMBEDDING):
+    for front_end in ("mfcc", EMBEDDING, FAST_EMBEDDING):
         features = features_from_waveform(quiet, "speech", front_end)
         assert np.array_equal(features, silence("speech", front_end)) and not features.any()
 
@@ -72,7 +96,7 @@ def test_the_batch_path_gives_the_wheels_streaming_embeddings_wherever_the_sound
     noise = np.random.default_rng(0).uniform(-0.3, 0.3, 32_000)
     sound = np.round(noise * 32767) / 32767
     ours = speech_embedding.embed(sound)
-    padding = speech_embedding.EDGE_PAD_SAMPLES
+    padding = speech_embedding.EDGE_PAD_SAMPLES[EMBEDDING][0]
     samples = np.pad(np.round(sound * 32767), (padding, padding)).astype(np.int16)
     samples = np.pad(samples, (0, -len(samples) % 1280))
     stream = OpenWakeWordFeatures.from_builtin()

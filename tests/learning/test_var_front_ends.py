@@ -108,6 +108,18 @@ def test_a_checkpoint_is_refused_for_features_of_another_front_end(embedding_var
         load_state_into(VAR(MFCC_VAR), read_checkpoint(path), path)
 
 
+def test_the_full_and_fast_speech_embedding_checkpoints_refuse_each_others_features(
+    embedding_var, tmp_path
+) -> None:
+    """Both give 96 values a frame, so only the recorded name tells them apart: a VAR trained on the full
+    front end's frames must not read the fast one's, which drop the edge windows its statistics counted."""
+    path = save_var(embedding_var, tmp_path / "var.pt")
+    with pytest.raises(
+        CheckpointMismatchError, match="reads 'speech-embedding' features, but 'speech-embedding-fast'"
+    ):
+        load_var(path, front_end="speech-embedding-fast")
+
+
 def test_a_checkpoint_from_before_front_ends_loads_as_mfcc_and_serves(tmp_path) -> None:
     torch.manual_seed(1)
     var = VAR(MFCC_VAR).eval()

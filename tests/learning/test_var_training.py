@@ -11,7 +11,12 @@ import torch
 from learning.sounds import load_corpus
 from learning.sounds.build import build_corpora
 from learning.var.checkpoint import CheckpointMismatchError, load_var, read_checkpoint
-from learning.var.dataset import DatasetError, SoundBank, collect_dataset, speed_perturbed_features
+from learning.var.dataset import (
+    DatasetError,
+    SoundBank,
+    collect_dataset,
+    perturbed_features,
+)
 from learning.var.evaluate import embed_images, evaluate_var, nearest_command_accuracy, triplet_accuracy
 from learning.var.finetune import finetune_config
 from learning.var.train import TrainConfig, train
@@ -205,14 +210,14 @@ def test_speed_copies_are_faster_and_slower_renderings_of_every_chosen_clip(word
     doubled = copies((0.85, 1.15))
     assert len(doubled.features) == 3 * len(bank.features)
     assert np.bincount(doubled.intent).tolist() == (3 * np.bincount(bank.intent)).tolist()
-    at_speed_1 = speed_perturbed_features(chosen.clip, wordset.kind, 2, (1.0, 1.0), seed=0)
+    at_speed_1 = perturbed_features(chosen.clip, wordset.kind, 2, "speed", (1.0, 1.0), seed=0)
     assert np.allclose(at_speed_1, np.repeat(chosen.features, 2, axis=0), atol=1e-3)  # the clips themselves
 
     def sounding_frames(features: np.ndarray) -> float:
         return float((np.abs(features).sum(axis=2) > 0).sum(axis=1).mean())
 
     def copies_only(speed: tuple[float, float]) -> np.ndarray:  # the bank sorts its rows by intent
-        return speed_perturbed_features(chosen.clip, wordset.kind, 2, speed, seed=0)
+        return perturbed_features(chosen.clip, wordset.kind, 2, "speed", speed, seed=0)
 
     faster, slower = copies_only((1.25, 1.25)), copies_only((0.8, 0.8))
     assert sounding_frames(faster) < sounding_frames(bank.features)
@@ -221,6 +226,29 @@ def test_speed_copies_are_faster_and_slower_renderings_of_every_chosen_clip(word
     as_notes = dataclasses.replace(wordset, kind="sound")  # a set like notes, where pitch is the command
     with pytest.raises(DatasetError, match="without --speed-copies"):
         SoundBank.from_corpus(as_notes, ("train",), (speaker,), 2, (0.85, 1.15), 0)
+
+
+def test_voice_copies_are_renderings_of_every_chosen_clip_with_its_formants_moved(wordset):
+    """Same length and timing as the clip (the heard frames stay), other features; a warp of 1 is the clip."""
+    speaker = wordset.subset("train").speaker[0]
+    chosen = wordset.subset("train").by_speakers([speaker])
+    bank = SoundBank.from_corpus(wordset, ("train",), (speaker,))
+    doubled = SoundBank.from_corpus(wordset, ("train",), (speaker,), voice_copies=2)
+    assert len(doubled.features) == 3 * len(bank.features)
+    assert np.bincount(doubled.intent).tolist() == (3 * np.bincount(bank.intent)).tolist()
+
+    def copies_only(warp: tuple[float, float]) -> np.ndarray:
+        return perturbed_features(chosen.clip, wordset.kind, 2, "voice", warp, seed=0)
+
+    unwarped = copies_only((1.0, 1.0))
+    assert np.allclose(unwarped, np.repeat(chosen.features, 2, axis=0), atol=1e-2)
+    warped = copies_only((1.15, 1.15))
+    heard = np.abs(warped).sum(axis=2) > 0
+    assert np.array_equal(heard, np.abs(unwarped).sum(axis=2) > 0)
+    assert np.abs(warped - unwarped).mean() > 10 * np.abs(unwarped - np.repeat(chosen.features, 2, 0)).mean()
+    as_notes = dataclasses.replace(wordset, kind="sound")
+    with pytest.raises(DatasetError, match="without --speed-copies and --voice-copies"):
+        SoundBank.from_corpus(as_notes, ("train",), (speaker,), voice_copies=1)
 
 
 def test_nearest_command_accuracy_is_far_above_chance_for_the_training_clips(pretrained, wordset):

@@ -103,12 +103,62 @@ def test_show_names_each_worlds_base_model_with_its_rooms_and_front_end(
     monkeypatch.setenv("VARBOT_DATA_DIR", str(tmp_path / "data"))
     result = CliRunner().invoke(app, ["models", "show"])
     assert result.exit_code == 0, result.output
-    built = json.loads((SHIPPED / "base.json").read_text())["built_at"]
-    shown = f"kuka: {SHIPPED} ({built}; trained in rooms: randomised; front end: speech-embedding)"
+    kuka = json.loads((SHIPPED / "base.json").read_text())
+    front_end = f"speech-embedding-fast, refitted {kuka['refit']['refitted_at']} from speech-embedding"
+    shown = f"kuka: {SHIPPED} ({kuka['built_at']}; trained in rooms: randomised; front end: {front_end})"
     assert shown in result.output
     turtlebot = SHIPPED_DIR / "turtlebot"
-    built = json.loads((turtlebot / "base.json").read_text())["built_at"]
-    assert f"turtlebot: {turtlebot} ({built}; trained in rooms: randomised; front end: speech-embedding)" in (
-        result.output
+    record = json.loads((turtlebot / "base.json").read_text())
+    front_end = f"speech-embedding-fast, refitted {record['refit']['refitted_at']} from speech-embedding"
+    shown = (
+        f"turtlebot: {turtlebot} ({record['built_at']}; trained in rooms: randomised; front end: {front_end})"
     )
+    assert shown in result.output
     assert "kinova: no base model for the kinova world" in result.output
+
+
+def test_a_base_model_moves_to_the_fast_front_end_keeping_its_policy_and_image_encoder(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`varbot models refit-front-end`: the same policy file and f_I, an f_S that reads the new front end's
+    features and agrees with the old one on the training clips, evaluated again in the record's rooms; the
+    old record is kept beside the new one."""
+    import torch
+
+    from learning.sounds.build import build_corpora
+    from learning.var.checkpoint import load_var
+    from worker.base_models import BaseRecipe, build_base
+
+    build_corpora(["wordset"], profile="small", progress=False, log=lambda _: None)
+    tiny_ppo = {
+        "num_envs": 2, "env_groups": 1, "num_steps": 12, "num_minibatches": 2, "update_epochs": 1,
+        "max_episode_steps": 5, "policy_image_size": 16,
+    }  # fmt: skip
+    recipe = BaseRecipe(
+        front_end="speech-embedding", views=200, image_size=16, var_max_steps=5, policy_steps=24,
+        eval_episodes_per_intent=1, eval_rooms=("unseen_room",), ppo_settings=tiny_ppo,
+    )  # fmt: skip
+    build_base(recipe, tmp_path / "built", progress=False)
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "built"))
+    refit = [
+        *("models", "refit-front-end", "--world", "kuka", "--front-end", "speech-embedding-fast"),
+        *("--steps", "300", "--room-copies", "0", "--out", str(tmp_path / "refit")),
+    ]
+    result = CliRunner().invoke(app, refit)
+    assert result.exit_code == 0, result.output
+
+    old, new = tmp_path / "built" / "kuka", tmp_path / "refit" / "kuka"
+    record = json.loads((new / "base.json").read_text())
+    assert record["front_end"] == "speech-embedding-fast"
+    assert record["before_refit"]["front_end"] == "speech-embedding"
+    assert set(record["evaluation"]) == set(record["before_refit"]["evaluation"]) == {"unseen_room"}
+    assert (new / "policy.pt").read_bytes() == (old / "policy.pt").read_bytes()
+    teacher, student = load_var(old / "var.pt"), load_var(new / "var.pt", front_end="speech-embedding-fast")
+    for name, weights in teacher.image_encoder.state_dict().items():
+        assert torch.equal(student.image_encoder.state_dict()[name], weights), name
+    assert record["refit"]["agreement"]["train"]["mean_cosine"] > 0.95
+    assert record["refit"]["agreement"]["unheard-easy"]["clips"] > 0
+
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "refit"))
+    again = CliRunner().invoke(app, [*refit[:6], "--out", str(tmp_path / "again")])
+    assert again.exit_code == 2 and "already reads 'speech-embedding-fast' features" in again.output
