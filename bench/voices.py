@@ -11,7 +11,8 @@ VOICE_COPIES with the formants moved (`--speed-copies`, `--voice-copies`). Each 
 its set's unheard tiers:
 - nearest-command accuracy: a clip's f_S embedding nearest the mean direction of its own command among the
   training clips (what a goal clip must do for the policy to head for the right block);
-- triplet accuracy on held-out views (another seed), as `varbot var eval` reports it; image -> command.
+- triplet accuracy on held-out views (seed 1000, the same for every --seed), as `varbot var eval` reports
+  it; image -> command.
 The multilingual Wordset has one unheard tier per language (unheard-en, unheard-de, ...) and unheard-room
 (further unheard speakers of every language, recorded in simulated rooms). A set without an unheard-room tier
 gets one here, `unheard-room (derived)`: every unheard clip recorded in a room drawn from a stream no
@@ -100,7 +101,7 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument("--runs", default=",".join(DEFAULT_RUNS), help="comma-separated SET:FRONT_END:COPIES")
     parser.add_argument("--steps", type=int, default=700, help="VAR training steps per run")
     parser.add_argument("--views", type=int, default=3000, help="Kuka training views")
-    parser.add_argument("--test-views", type=int, default=1000, help="held-out views (another seed)")
+    parser.add_argument("--test-views", type=int, default=1000, help="held-out views (seed 1000)")
     parser.add_argument("--image-size", type=int, default=48)
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--parallel", type=int, default=2, help="runs trained at once, one thread each")

@@ -25,6 +25,7 @@ if TYPE_CHECKING:
 
 SHIPPED_DIR = REPO_ROOT / "worker" / "base_models"
 RECORD = "base.json"
+EVALUATION_SEED_OFFSET = 999  # a base's evaluation episodes come from its recipe's seed + this
 
 
 class BaseModelMissing(FileNotFoundError):
@@ -174,7 +175,8 @@ def build_base(
     with clock("evaluate_s"):
         evaluations = evaluate_in_rooms(
             var_result.checkpoint, policy_dir / "checkpoint.pt", recipe.eval_rooms,
-            episodes_per_intent=recipe.eval_episodes_per_intent, seed=recipe.seed + 999, progress=progress,
+            episodes_per_intent=recipe.eval_episodes_per_intent, seed=recipe.seed + EVALUATION_SEED_OFFSET,
+            progress=progress,
         )  # fmt: skip
     record = {
         "world": recipe.world,
@@ -219,9 +221,9 @@ def refit_base(
 ) -> dict[str, Any]:
     """A world's base model moved to another sound front end (`learning.var.refit`): the same policy and f_I,
     f_S taught to agree with the old one, evaluated again in the rooms of its record with the same seed,
-    written to `out_root/<world>/` with its record (the one before kept under `before_refit`).
-    `refit_settings`: RefitConfig's steps, room_copies... Households
-    whose VAR was fine-tuned from the old base keep it: its checkpoint names its own front end."""
+    written to `out_root/<world>/` with its record (the one before kept under `before_refit`);
+    `refit_settings` are RefitConfig's (steps, room_copies...). Households whose VAR was fine-tuned from the
+    old base keep it: its checkpoint names its own front end."""
     from learning.var.checkpoint import load_var, read_checkpoint, save_var
     from learning.var.refit import RefitConfig, refit_front_end
 
@@ -248,33 +250,41 @@ def refit_base(
     episodes = eval_episodes_per_intent or int(recipe.get("eval_episodes_per_intent", 25))
     evaluation = evaluate_in_rooms(
         staging / "var.pt", staging / "policy.pt", recipe.get("eval_rooms", [TRAINING_ROOM, *HELD_OUT_ROOMS]),
-        episodes_per_intent=episodes, seed=int(recipe.get("seed", 0)) + 999, progress=progress,
+        episodes_per_intent=episodes, seed=int(recipe.get("seed", 0)) + EVALUATION_SEED_OFFSET,
+        progress=progress,
     )  # fmt: skip
-    record = {
-        **{key: value for key, value in before.items() if key not in ("evaluation", "before_refit")},
-        "front_end": front_end,
-        "evaluation": evaluation,
-        "refit": {
-            **result.report,
-            "command": " ".join(["varbot", "models", "refit-front-end", *sys.argv[3:]])
-            if "refit-front-end" in sys.argv
-            else None,
-            "refitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        },
-        "before_refit": {
-            "front_end": before.get("front_end", "mfcc"),
-            "evaluation": before.get("evaluation"),
-            "folder": str(
-                base.folder.relative_to(REPO_ROOT) if base.folder.is_relative_to(REPO_ROOT) else base.folder
-            ),
-        },
-    }
+    record = _refit_record(base, front_end, result.report, evaluation)
     sizes = {name: (staging / name).stat().st_size for name in ("var.pt", "policy.pt")}
     (staging / RECORD).write_text(json.dumps({**record, "file_bytes": sizes}, indent=2) + "\n")
     folder = out_root / world
     shutil.rmtree(folder, ignore_errors=True)
     staging.rename(folder)
     return record
+
+
+def _refit_record(
+    base: BaseModel, front_end: str, report: dict[str, Any], evaluation: dict[str, Any]
+) -> dict[str, Any]:
+    before = base.record
+    folder = base.folder.relative_to(REPO_ROOT) if base.folder.is_relative_to(REPO_ROOT) else base.folder
+    command = (
+        ["varbot", "models", "refit-front-end", *sys.argv[3:]] if "refit-front-end" in sys.argv else None
+    )
+    return {
+        **{key: value for key, value in before.items() if key not in ("evaluation", "before_refit")},
+        "front_end": front_end,
+        "evaluation": evaluation,
+        "refit": {
+            **report,
+            "command": " ".join(command) if command else None,
+            "refitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        },
+        "before_refit": {
+            "front_end": before.get("front_end", "mfcc"),
+            "evaluation": before.get("evaluation"),
+            "folder": str(folder),
+        },
+    }
 
 
 def evaluate_in_rooms(

@@ -74,7 +74,9 @@ def refit_front_end(teacher: VAR, config: RefitConfig, progress: bool = True) ->
     return RefitResult(student, report)
 
 
-def _teaching_features(old_front_end: str, config: RefitConfig, progress: bool) -> tuple[np.ndarray, ...]:
+def _teaching_features(
+    old_front_end: str, config: RefitConfig, progress: bool
+) -> tuple[np.ndarray, np.ndarray]:
     """The training clips of the VAR's corpus and of `extra_sounds`, each with its room recordings, in the
     old and the new front end's features (row for row the same sound)."""
     front_ends = (old_front_end, config.front_end)
