@@ -110,7 +110,7 @@ def run_row(row: str, args: argparse.Namespace) -> dict:
         var,
         test_views,
         corpus,
-        RESULTS / f"var_sphere_{row.replace('-', '_')}.png",
+        RESULTS / f"var_sphere_{result_key(row, args).replace('-', '_').replace(':', '_')}.png",
         splits=[s for s in scores["tiers"] if s != "train"],
     )
     return {
