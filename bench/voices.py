@@ -113,10 +113,10 @@ def parse_arguments() -> argparse.Namespace:
 def run_dir(run: Run, args: argparse.Namespace) -> Path:
     from core.paths import data_subdir
 
-    speed = f"-speed{run.speed_copies}" if run.speed_copies else ""
-    speed += f"-voice{run.voice_copies}" if run.voice_copies else ""
+    copies = f"-speed{run.speed_copies}" if run.speed_copies else ""
+    copies += f"-voice{run.voice_copies}" if run.voice_copies else ""
     name = (
-        f"{run.sounds}-{run.front_end}-rooms{run.room_copies}{speed}-{args.views}views-{args.image_size}px-"
+        f"{run.sounds}-{run.front_end}-rooms{run.room_copies}{copies}-{args.views}views-{args.image_size}px-"
         f"{args.steps}steps-seed{args.seed}"
     )
     return data_subdir("bench", "voices", name)
@@ -277,9 +277,9 @@ def print_tables(result: dict, output: str | Path) -> None:
         table.add_column("image → cmd", justify="right")
         table.add_column("train s", justify="right")
         for run in runs.values():
-            speed = f", {run['speed_copies']} speed copies" if run.get("speed_copies") else ""
-            speed += f", {run['voice_copies']} voice copies" if run.get("voice_copies") else ""
-            cells = [f"{run['front_end']}, {run['room_copies']} room copies{speed}"]
+            copies = f", {run['speed_copies']} speed copies" if run.get("speed_copies") else ""
+            copies += f", {run['voice_copies']} voice copies" if run.get("voice_copies") else ""
+            cells = [f"{run['front_end']}, {run['room_copies']} room copies{copies}"]
             for tier in tiers:
                 scores = run["tiers"][tier]
                 cells.append(f"{scores['nearest_command_accuracy']:.1%} / {scores['triplet_accuracy']:.1%}")

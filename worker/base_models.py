@@ -90,9 +90,14 @@ def write_base(
     var_payload.pop("training", None)
     torch.save(var_payload, folder / "var.pt")
     compact_policy_checkpoint(policy_checkpoint, folder / "policy.pt")
+    _write_record(folder, record)
+    return folder
+
+
+def _write_record(folder: Path, record: dict) -> None:
+    """`base.json` beside the folder's var.pt and policy.pt, with their sizes."""
     sizes = {name: (folder / name).stat().st_size for name in ("var.pt", "policy.pt")}
     (folder / RECORD).write_text(json.dumps({**record, "file_bytes": sizes}, indent=2) + "\n")
-    return folder
 
 
 @dataclass(frozen=True)
@@ -254,8 +259,7 @@ def refit_base(
         progress=progress,
     )  # fmt: skip
     record = _refit_record(base, front_end, result.report, evaluation)
-    sizes = {name: (staging / name).stat().st_size for name in ("var.pt", "policy.pt")}
-    (staging / RECORD).write_text(json.dumps({**record, "file_bytes": sizes}, indent=2) + "\n")
+    _write_record(staging, record)
     folder = out_root / world
     shutil.rmtree(folder, ignore_errors=True)
     staging.rename(folder)

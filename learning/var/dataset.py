@@ -305,18 +305,16 @@ class SoundBank:
                 "set whose commands may be pitches or timbres: train it without --speed-copies and "
                 "--voice-copies."
             )
-        if speed_copies:
-            copies = perturbed_features(
-                chosen.clip, corpus.kind, speed_copies, "speed", speed_range, seed, corpus.front_end
-            )
-            features = np.concatenate([features, copies])
-            intent = np.concatenate([intent, np.repeat(chosen.intent, speed_copies)])
-        if voice_copies:
-            copies = perturbed_features(
-                chosen.clip, corpus.kind, voice_copies, "voice", voice_range, seed, corpus.front_end
-            )
-            features = np.concatenate([features, copies])
-            intent = np.concatenate([intent, np.repeat(chosen.intent, voice_copies)])
+        for perturbation, count, factors in (
+            ("speed", speed_copies, speed_range),
+            ("voice", voice_copies, voice_range),
+        ):
+            if count:
+                copies = perturbed_features(
+                    chosen.clip, corpus.kind, count, perturbation, factors, seed, corpus.front_end
+                )
+                features = np.concatenate([features, copies])
+                intent = np.concatenate([intent, np.repeat(chosen.intent, count)])
         if room_copies:
             copies = room_recorded_features(chosen.clip, corpus.kind, room_copies, seed, corpus.front_end)
             features = np.concatenate([features, copies])

@@ -50,10 +50,12 @@ def refit_front_end(teacher: VAR, config: RefitConfig, progress: bool = True) ->
     if config.front_end == teacher.front_end:
         raise ValueError(f"The VAR already reads '{teacher.front_end}' features: nothing to refit.")
     torch.manual_seed(config.seed)
-    old = load_corpus(config.sounds, front_end=teacher.front_end, progress=progress)
-    new = load_corpus(config.sounds, front_end=config.front_end, progress=progress)
+    front_ends = (teacher.front_end, config.front_end)
+    old, new = _corpora(config.sounds, front_ends, progress)
     old_train, new_train = old.subset("train"), new.subset("train")
-    old_features, new_features = _teaching_features(teacher.front_end, config, progress)
+    extra = [_corpora(name, front_ends, progress) for name in config.extra_sounds]
+    pairs = [(old_train, new_train), *((one.subset("train"), other.subset("train")) for one, other in extra)]
+    old_features, new_features = _teaching_features(pairs, config)
     targets = _embed(teacher, old_features)
 
     student = _student_of(teacher, config.front_end)
@@ -74,26 +76,27 @@ def refit_front_end(teacher: VAR, config: RefitConfig, progress: bool = True) ->
     return RefitResult(student, report)
 
 
-def _teaching_features(
-    old_front_end: str, config: RefitConfig, progress: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """The training clips of the VAR's corpus and of `extra_sounds`, each with its room recordings, in the
-    old and the new front end's features (row for row the same sound)."""
-    front_ends = (old_front_end, config.front_end)
-    parts: dict[str, list[np.ndarray]] = {name: [] for name in front_ends}
-    for sounds in (config.sounds, *config.extra_sounds):
-        for name in front_ends:
-            parts[name].append(
-                load_corpus(sounds, front_end=name, progress=progress).subset("train").features
-            )
+def _corpora(sounds: str, front_ends: tuple[str, str], progress: bool) -> tuple[Any, Any]:
+    """One corpus's clips with each front end's features (the same rows in the same order)."""
+    old, new = (load_corpus(sounds, front_end=name, progress=progress) for name in front_ends)
+    return old, new
+
+
+def _teaching_features(pairs: list[tuple[Any, ...]], config: RefitConfig) -> tuple[np.ndarray, np.ndarray]:
+    """The training clips of each (old front end, new front end) pair of one corpus, each with its room
+    recordings, in the old and the new front end's features (row for row the same sound)."""
+    old_parts, new_parts = [], []
+    for old_train, new_train in pairs:
+        old_parts.append(old_train.features)
+        new_parts.append(new_train.features)
         if config.room_copies:
-            clips = load_corpus(sounds).subset("train")
+            front_ends = (old_train.front_end, new_train.front_end)
             copies = room_recorded_features_in(
-                clips.clip, clips.kind, config.room_copies, config.seed, front_ends
+                old_train.clip, old_train.kind, config.room_copies, config.seed, front_ends
             )
-            for name in front_ends:
-                parts[name].append(copies[name])
-    return np.concatenate(parts[old_front_end]), np.concatenate(parts[config.front_end])
+            old_parts.append(copies[old_train.front_end])
+            new_parts.append(copies[new_train.front_end])
+    return np.concatenate(old_parts), np.concatenate(new_parts)
 
 
 def _student_of(teacher: VAR, front_end: str) -> VAR:
