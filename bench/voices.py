@@ -115,9 +115,10 @@ def run_dir(run: Run, args: argparse.Namespace) -> Path:
 
     copies = f"-speed{run.speed_copies}" if run.speed_copies else ""
     copies += f"-voice{run.voice_copies}" if run.voice_copies else ""
+    # the corpus's manifest hash: a VAR trained before the corpus changed is never taken as this run's
     name = (
         f"{run.sounds}-{run.front_end}-rooms{run.room_copies}{copies}-{args.views}views-{args.image_size}px-"
-        f"{args.steps}steps-seed{args.seed}"
+        f"{args.steps}steps-seed{args.seed}-{args.corpus_hashes[run.sounds][:8]}"
     )
     return data_subdir("bench", "voices", name)
 
@@ -237,6 +238,7 @@ def main() -> None:
     corpora = {
         (name, fe): load_corpus(name, front_end=fe, progress=True) for name in sets for fe in FRONT_ENDS
     }
+    args.corpus_hashes = {name: corpora[name, FRONT_ENDS[0]].manifest_hash for name in sets}
     train_views, test_views = kuka_views(args)
     train_runs(runs, train_views, args)
     torch.set_num_threads(1)  # after the trainings; ms per clip on one core

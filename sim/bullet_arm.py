@@ -1,9 +1,9 @@
 """Arms simulated in PyBullet behind the robot-facing `sim.arm.ArmDriver` interface.
 
 A simulated arm follows its gripper target with joint position control; the target moves in the table plane
-at the fixed height `GRIPPER_HEIGHT_M` and inverse kinematics turn it into joint targets. `move_target`
-advances the simulation by one control period (16 physics steps of 1/240 s): the time a real arm gets to
-follow one command before the next frame is taken.
+at its arm's fixed height (`gripper_height_m`) and inverse kinematics turn it into joint targets.
+`move_target` advances the simulation by one control period (16 physics steps of 1/240 s): the time a real
+arm gets to follow one command before the next frame is taken.
 """
 
 from abc import ABC, abstractmethod
@@ -48,6 +48,7 @@ class BulletArm(ABC):
     motor_force: float
     position_gain: float
     velocity_gain: float
+    gripper_height_m: float = GRIPPER_HEIGHT_M  # where the gripper link moves in the table plane
 
     def __init__(
         self,
@@ -140,7 +141,7 @@ class BulletArm(ABC):
         return int(self.client.rayTest(start, (x, y, down_to_z))[0][0])
 
     def _target_position(self) -> list[float]:
-        return [float(self._target[0]), float(self._target[1]), GRIPPER_HEIGHT_M]
+        return [float(self._target[0]), float(self._target[1]), self.gripper_height_m]
 
     def _drive_joints(self, positions: Sequence[float]) -> None:
         count = len(self.arm_joints)

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.arm import GEN3_GRIPPER_HEIGHT_M
 from sim.blocks import TABLE_TOP_Z_M, BlocksEnv
 from sim.bullet_arm import BulletArm
 
@@ -20,6 +21,7 @@ GEN3_BASE_POSITION_M = (0.2, 0.05, TABLE_TOP_Z_M)
 TOOL_DOWN_EULER = (np.pi, 0.0, 0.0)
 # Kinova's own "home" posture, the start of every inverse-kinematics solve after a reset.
 GEN3_HOME_JOINTS = (0.0, 0.26, 3.14, -2.27, 0.0, 0.96, 1.57)
+GEN3_TOOL_LENGTH_M = 0.18  # tool_link's cylinder in gen3_7dof.urdf
 GEN3_JOINT_LIMITS = {1: 2.24, 3: 2.57, 5: 2.09}  # the bounded joints (index: ±limit); the others turn freely
 
 
@@ -27,7 +29,8 @@ class SimulatedGen3(BulletArm):
     gripper_link = 7  # end_effector_link, the tool flange
     arm_joints = tuple(range(7))
     rest_pose = GEN3_HOME_JOINTS
-    ray_start_below_gripper_m = 0.19  # below the 0.18 m tool
+    ray_start_below_gripper_m = GEN3_TOOL_LENGTH_M + 0.01  # below the tool
+    gripper_height_m = GEN3_GRIPPER_HEIGHT_M
     motor_force = 200.0
     position_gain = 0.03
     velocity_gain = 1.0

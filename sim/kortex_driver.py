@@ -29,7 +29,7 @@ from typing import Any, Self
 import cv2
 import numpy as np
 
-from sim.arm import GRIPPER_HEIGHT_M, STEP_M, WORKSPACE_X_M, WORKSPACE_Y_M, clip_to_workspace
+from sim.arm import GEN3_GRIPPER_HEIGHT_M, STEP_M, WORKSPACE_X_M, WORKSPACE_Y_M, clip_to_workspace
 
 KORTEX_WHEEL = "kortex_api-2.6.0.post3-py3-none-any.whl"
 KORTEX_WHEEL_URL = (
@@ -350,7 +350,7 @@ class KortexArmDriver:
         pose = action.reach_pose.target_pose
         pose.x = x - self.base_in_table_m[0]
         pose.y = y - self.base_in_table_m[1]
-        pose.z = GRIPPER_HEIGHT_M - self.base_in_table_m[2]
+        pose.z = GEN3_GRIPPER_HEIGHT_M - self.base_in_table_m[2]
         pose.theta_x, pose.theta_y, pose.theta_z = self.tool_orientation_deg
         speed = action.reach_pose.constraint.speed
         speed.translation = self.max_speed_m_s

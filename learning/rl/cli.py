@@ -51,6 +51,13 @@ def train(
     room: Annotated[
         str, typer.Option(help="training, or randomised: a room per episode from core.rooms.RoomRanges")
     ] = "training",
+    init_policy: Annotated[
+        Path | None,
+        typer.Option(
+            help="Start from this policy's weights (a checkpoint of the same network, e.g. a base model's "
+            "policy.pt); the optimiser starts afresh."
+        ),
+    ] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
@@ -90,7 +97,9 @@ def train(
         if init_encoders is not None:
             config = replace(config, init_encoders=str(init_encoders))
         config.validate()
-        summary = train_run(config, run_dir, frozen if needs_var(method) else None, resume=resume)
+        summary = train_run(
+            config, run_dir, frozen if needs_var(method) else None, init_policy=init_policy, resume=resume
+        )
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         _fail(str(error))
     typer.echo(json.dumps(summary, indent=2))

@@ -54,7 +54,10 @@ def make_trainer(
     var = as_loaded_var(var_path)
     run_dir.mkdir(parents=True, exist_ok=True)
     saved_path = str(var.path if var is not None else None)
-    (run_dir / "config.json").write_text(json.dumps({**asdict(config), "var_path": saved_path}, indent=2))
+    started_from = str(init_policy) if init_policy is not None else None
+    (run_dir / "config.json").write_text(
+        json.dumps({**asdict(config), "var_path": saved_path, "init_policy": started_from}, indent=2)
+    )
     front_end = var.model.front_end if var is not None else "mfcc"  # goal clips as the VAR's f_S reads them
     if goals is None:
         goals = corpus_bank(config.sounds, config.goal_split, front_end=front_end)

@@ -322,8 +322,14 @@ def _speak_one(plan: ClipPlan) -> np.ndarray:
     s, v = plan.speaker, plan.variation
     if s.engine == "espeak-ng":
         data = engines.espeak(
-            _spoken(plan), s.voice, s.accent, int(v["pitch"]), int(v["speed"]), int(v["word_gap"])
-        )  # type: ignore[arg-type]
+            _spoken(plan),
+            s.voice,
+            s.accent,
+            int(v["pitch"]),
+            int(v["speed"]),
+            int(v["word_gap"]),  # type: ignore[arg-type]
+            variant_text=s.variant_text,
+        )
     else:
         data = engines.flite(_spoken(plan), s.voice, float(v["duration_stretch"]))  # type: ignore[arg-type]
     return decode_audio(data)[0]

@@ -1,5 +1,11 @@
 """The offline synthesizers (Debian packages) behind the corpora: espeak-ng, flite, festival, fluidsynth."""
 
+import atexit
+import contextlib
+import functools
+import hashlib
+import os
+import re
 import shutil
 import subprocess
 import tempfile
@@ -76,11 +82,57 @@ def soundfont_path(name: str) -> Path:
     return SOUNDFONT_DIR / f"{name}.sf2"
 
 
-def espeak(text: str, variant: str, accent: str, pitch: int, speed: int, word_gap: int = 0) -> bytes:
+def espeak(
+    text: str, variant: str, accent: str, pitch: int, speed: int, word_gap: int = 0, variant_text: str = ""
+) -> bytes:
+    """`variant` names one of espeak-ng's voice variants, or, with `variant_text`, a variant file of our own
+    (a mixed voice, `learning.sounds.speakers.mixed_variant`)."""
     # One process per clip (~15 ms of CPU, mostly start-up). libespeak-ng in-process would be faster but its
     # output depends on what it synthesised before (state carried between utterances): not deterministic.
-    command = ["espeak-ng", "-v", f"{accent}+{variant}", "-p", str(pitch), "-s", str(speed)]
+    data_path: list[str] = []
+    if variant_text:
+        root, variant = _own_variant(variant_text)
+        data_path = [f"--path={root}"]
+    command = ["espeak-ng", *data_path, "-v", f"{accent}+{variant}", "-p", str(pitch), "-s", str(speed)]
     return _run([*command, "-g", str(word_gap), "--stdout", text])
+
+
+def _own_variant(variant_text: str) -> tuple[Path, str]:
+    """espeak-ng reads variants only from its data folder: a private data folder per variant (links to the
+    system's files, the variant as the only file of `voices/!v`: espeak-ng lists at most 349 voices)."""
+    name = "varbot-" + hashlib.sha256(variant_text.encode()).hexdigest()[:16]
+    root = _private_espeak_folder() / name
+    if not root.exists():
+        system = _system_espeak_data()
+        partial = root.with_suffix(f".{os.getpid()}.part")
+        shutil.rmtree(partial, ignore_errors=True)
+        for folder in ("", "voices"):
+            (partial / "espeak-ng-data" / folder).mkdir(parents=True)
+            for entry in (system / folder).iterdir():
+                if entry.name not in ("voices", "!v"):
+                    (partial / "espeak-ng-data" / folder / entry.name).symlink_to(entry)
+        (partial / "espeak-ng-data" / "voices" / "!v").mkdir()
+        (partial / "espeak-ng-data" / "voices" / "!v" / name).write_text(variant_text)
+        with contextlib.suppress(OSError):  # another process made it first: theirs is the same
+            partial.rename(root)
+        shutil.rmtree(partial, ignore_errors=True)
+    return root, name
+
+
+@functools.cache
+def _private_espeak_folder() -> Path:
+    folder = Path(tempfile.mkdtemp(prefix="varbot-espeak-"))
+    atexit.register(shutil.rmtree, folder, ignore_errors=True)
+    return folder
+
+
+def _system_espeak_data() -> Path:
+    """Where this espeak-ng keeps its data ("Data at: …" in `espeak-ng --version`)."""
+    version = _run(["espeak-ng", "--version"]).decode()
+    found = re.search(r"Data at:\s*(\S+)", version)
+    if found is None:
+        raise EngineMissingError(f"espeak-ng does not say where its data is: {version.strip()!r}")
+    return Path(found.group(1))
 
 
 def flite(text: str, voice: str, duration_stretch: float = 1.0) -> bytes:

@@ -5,9 +5,10 @@
 - unheard-easy: espeak-ng speakers built only from variants *and* accents that training never uses.
 - unheard-real-voices: flite awb and rms, festival ked — real people's voices no training step heard.
 - wordset-multilingual: espeak-ng speakers of each language; train from the training variants and that
-  language's training accents, unheard-<language> (e.g. unheard-de) from the held-out variants and accents,
-  and unheard-room: further held-out speakers of every language, recorded in simulated rooms
-  (learning.room_acoustics) with seeds no training copy uses.
+  language's training accents, plus mixed voices (espeak-ng variants drawn for training only, below);
+  unheard-<language> (e.g. unheard-de) from the held-out variants and accents; unheard-room: further
+  held-out speakers of every language, recorded in simulated rooms (learning.room_acoustics) with seeds
+  no training copy uses.
 - notes: train = training instruments of FluidR3; unheard-instrument = held-out instruments of FluidR3;
   unheard-soundfont = every instrument of TimGM6mb, a soundfont training never used.
 """
@@ -48,6 +49,14 @@ HELD_OUT_VARIANTS = (
 TRAIN_ACCENTS = ("en-us", "en", "en-gb-x-rp")
 HELD_OUT_ACCENTS = ("en-gb-scotland", "en-029", "en-us-nyc", "en-gb-x-gbclan", "en-gb-x-gbcwmd")
 ESPEAK_PITCH = (25, 75)  # espeak-ng -p, 0..99
+# Mixed voices: espeak-ng variants written for training only. Each formant's frequency, strength and width
+# (in % of espeak-ng's defaults) and the pitch range are drawn from ranges about as wide as the training
+# variants' own, so training hears voices between and around its 24 named variants, not only those.
+MIXED_FORMANTS = (1, 2, 3, 4, 5)
+MIXED_FREQUENCY = (70, 140)
+MIXED_STRENGTH = (60, 120)
+MIXED_WIDTH = (75, 150)
+MIXED_PITCH_LOW_HZ = (65, 170)  # the high end of the pitch range is 1.3-1.6 times the low end
 ESPEAK_SPEED = (135, 195)  # words per minute
 
 SOUNDFONT_TRAIN = "FluidR3_GM"
@@ -127,11 +136,12 @@ class MultilingualSize:
     unheard: int
     room: int
     variations: int  # per speaker and word
+    mixed: int = 0  # training speakers with a mixed voice, on top of `train`
 
 
 MULTILINGUAL_SIZES = {
-    "default": MultilingualSize(train=32, unheard=12, room=4, variations=3),
-    "small": MultilingualSize(train=2, unheard=1, room=1, variations=1),
+    "default": MultilingualSize(train=32, unheard=12, room=4, variations=3, mixed=16),
+    "small": MultilingualSize(train=2, unheard=1, room=1, variations=1, mixed=1),
 }
 
 
@@ -153,11 +163,14 @@ class Speaker:
     speed: int = 0
     soundfont: str = ""
     program: int = -1
+    variant_text: str = ""  # a mixed voice's espeak-ng variant file (its `voice` is then only its name)
 
     def params(self) -> dict[str, object]:
         params: dict[str, object] = {"voice": self.voice}
         if self.engine == "espeak-ng":
             params.update(accent=self.accent, pitch=self.pitch, speed=self.speed)
+        if self.variant_text:
+            params["variant_text"] = self.variant_text
         if self.engine == "fluidsynth":
             params.update(soundfont=self.soundfont, program=self.program)
         return params
@@ -201,6 +214,33 @@ def multilingual_speakers(
             rng = np.random.default_rng([seed, 2, index, stream])
             drawn = _espeak_speakers(rng, count, variants, accents, split, f"{language.code}-{tag}")
             speakers += [(language, speaker) for speaker in drawn]
+        rng = np.random.default_rng([seed, 2, index, len(tiers)])
+        mixed = _mixed_speakers(rng, size.mixed, language.train_accents, f"{language.code}-x")
+        speakers += [(language, speaker) for speaker in mixed]
+    return speakers
+
+
+def mixed_variant(rng: np.random.Generator, name: str) -> str:
+    """An espeak-ng voice variant file with formants and pitch drawn from the MIXED_* ranges."""
+    low = int(rng.integers(*MIXED_PITCH_LOW_HZ, endpoint=True))
+    lines = ["language variant", f"name {name}", f"pitch {low} {round(low * rng.uniform(1.3, 1.6))}"]
+    for formant in MIXED_FORMANTS:
+        settings = (
+            int(rng.integers(*bounds, endpoint=True))
+            for bounds in (MIXED_FREQUENCY, MIXED_STRENGTH, MIXED_WIDTH)
+        )
+        lines.append(f"formant {formant} {' '.join(map(str, settings))}")
+    return "\n".join(lines) + "\n"
+
+
+def _mixed_speakers(
+    rng: np.random.Generator, count: int, accents: tuple[str, ...], tag: str
+) -> list[Speaker]:
+    speakers = []
+    for index in range(count):
+        name = f"mix{index:02d}"
+        variant_text = mixed_variant(rng, name)
+        speakers.append(_espeak_speaker(rng, f"{tag}{index:02d}", name, accents, TRAIN, variant_text))
     return speakers
 
 
@@ -234,21 +274,30 @@ def _espeak_speakers(
     tag: str,
 ) -> list[Speaker]:
     order = rng.permutation(len(variants))
-    speakers = []
-    for index in range(count):
-        variant = variants[order[index % len(variants)]]
-        accent = accents[int(rng.integers(len(accents)))]
-        pitch = int(rng.integers(ESPEAK_PITCH[0], ESPEAK_PITCH[1] + 1))
-        speed = int(rng.integers(ESPEAK_SPEED[0], ESPEAK_SPEED[1] + 1))
-        speakers.append(
-            Speaker(
-                id=f"espeak-ng:{tag}{index:02d}-{variant}-{accent}-p{pitch}-s{speed}",
-                engine="espeak-ng",
-                voice=variant,
-                split=split,
-                accent=accent,
-                pitch=pitch,
-                speed=speed,
-            )
-        )
-    return speakers
+    return [
+        _espeak_speaker(rng, f"{tag}{index:02d}", variants[order[index % len(variants)]], accents, split)
+        for index in range(count)
+    ]
+
+
+def _espeak_speaker(
+    rng: np.random.Generator,
+    label: str,
+    variant: str,
+    accents: tuple[str, ...],
+    split: str,
+    variant_text: str = "",
+) -> Speaker:
+    accent = accents[int(rng.integers(len(accents)))]
+    pitch = int(rng.integers(ESPEAK_PITCH[0], ESPEAK_PITCH[1] + 1))
+    speed = int(rng.integers(ESPEAK_SPEED[0], ESPEAK_SPEED[1] + 1))
+    return Speaker(
+        id=f"espeak-ng:{label}-{variant}-{accent}-p{pitch}-s{speed}",
+        engine="espeak-ng",
+        voice=variant,
+        split=split,
+        accent=accent,
+        pitch=pitch,
+        speed=speed,
+        variant_text=variant_text,
+    )

@@ -269,6 +269,26 @@ def test_self_improvement_continues_a_trained_policy_with_household_clips(
     assert summary["labels"]["total"] == 0  # self-improvement uses no labels
 
 
+def test_a_run_can_start_from_another_runs_policy_and_records_where_it_started(
+    tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
+) -> None:
+    from learning.rl.run import make_trainer, train_run
+
+    bank = ClipBank(goal_clips.features, goal_clips.intents)
+    train_run(tiny_config(total_steps=24), tmp_path / "first", var_checkpoint, goals=bank, progress=False)
+    first, _ = load_policy(tmp_path / "first" / "checkpoint.pt")
+    start = tmp_path / "first" / "checkpoint.pt"
+    trainer = make_trainer(
+        tiny_config(total_steps=24, seed=7), tmp_path / "second", var_checkpoint, bank, start
+    )
+    try:
+        for mine, theirs in zip(trainer.policy.parameters(), first.parameters(), strict=True):
+            assert torch.equal(mine, theirs)
+    finally:
+        trainer.close()
+    assert json.loads((tmp_path / "second" / "config.json").read_text())["init_policy"] == str(start)
+
+
 def household_recordings(folder: Path) -> list[str]:
     paths = []
     for word in WORDS:

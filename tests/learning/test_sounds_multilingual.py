@@ -15,9 +15,14 @@ from learning.sounds.sets import SOUND_SETS
 from learning.sounds.speakers import (
     HELD_OUT_ACCENTS,
     HELD_OUT_VARIANTS,
+    MIXED_FORMANTS,
+    MIXED_FREQUENCY,
+    MIXED_STRENGTH,
+    MIXED_WIDTH,
     MULTILINGUAL_SIZES,
     TRAIN_ACCENTS,
     TRAIN_VARIANTS,
+    mixed_variant,
 )
 from learning.var.dataset import SoundBank
 
@@ -68,8 +73,12 @@ def test_every_language_has_its_own_unheard_speakers_and_every_tier_every_intent
         by_language[record["language"]].add(record["split"])
         language = next(language for language in SET.languages if language.code == record["language"])
         assert record["text"].rstrip(".!?") == language.words[record["intent"]]
-        variants = TRAIN_VARIANTS if record["split"] == "train" else HELD_OUT_VARIANTS
-        assert record["speaker_params"]["voice"] in variants
+        params = record["speaker_params"]
+        if "variant_text" in params:
+            assert record["split"] == "train", "mixed voices are for training only"
+        else:
+            variants = TRAIN_VARIANTS if record["split"] == "train" else HELD_OUT_VARIANTS
+            assert params["voice"] in variants
         assert ("room" in record["variation"]) == (record["split"] == "unheard-room")
     assert by_language == {code: {"train", f"unheard-{code}", "unheard-room"} for code in codes}
     assert not (np.abs(corpus.features).sum(axis=(1, 2)) == 0).any(), "a clip came out silent"
@@ -91,6 +100,30 @@ def test_more_training_speakers_leave_the_unheard_speakers_and_their_clips_as_th
         return [(p.clip, p.speaker, p.text, p.variation) for p in plans if p.speaker.split != "train"]
 
     assert planned_unheard(16) == planned_unheard(32)
+
+
+def test_every_language_trains_with_mixed_voices_that_sound_unlike_any_named_variant(
+    small_root: Path,
+) -> None:
+    mixed = [r for r in records(small_root) if "variant_text" in r["speaker_params"]]
+    assert {r["language"] for r in mixed} == {language.code for language in SET.languages}
+    rng = np.random.default_rng(0)
+    texts = [mixed_variant(rng, f"mix{index:02d}") for index in range(3)]
+    assert len(set(texts)) == 3
+    for text in texts:
+        for line in text.splitlines():
+            if line.startswith("formant"):
+                _, formant, frequency, strength, width = line.split()
+                assert int(formant) in MIXED_FORMANTS
+                assert MIXED_FREQUENCY[0] <= int(frequency) <= MIXED_FREQUENCY[1]
+                assert MIXED_STRENGTH[0] <= int(strength) <= MIXED_STRENGTH[1]
+                assert MIXED_WIDTH[0] <= int(width) <= MIXED_WIDTH[1]
+    named = {
+        engines.espeak("deux", variant, "fr", 50, 160) for variant in (*TRAIN_VARIANTS, *HELD_OUT_VARIANTS)
+    }
+    heard = [engines.espeak("deux", "mix", "fr", 50, 160, variant_text=text) for text in texts]
+    assert len(set(heard)) == 3 and not set(heard) & named
+    assert heard[0] == engines.espeak("deux", "mix", "fr", 50, 160, variant_text=texts[0]), "not repeatable"
 
 
 def test_no_language_or_transcript_reaches_the_var(small_root: Path) -> None:

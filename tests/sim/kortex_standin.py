@@ -42,7 +42,7 @@ from typing import Any, ClassVar
 import cv2
 import numpy as np
 
-from sim.arm import GRIPPER_HEIGHT_M, WORKSPACE_X_M, WORKSPACE_Y_M
+from sim.arm import GEN3_GRIPPER_HEIGHT_M, WORKSPACE_X_M, WORKSPACE_Y_M
 from sim.kinova_blocks import KinovaBlocksEnv
 from sim.kortex_driver import KortexApi
 
@@ -297,8 +297,8 @@ class StandInArm:
             self.violations.append(f"pose x={target.x} outside the workspace {WORKSPACE_X_M}")
         if not WORKSPACE_Y_M[0] - 1e-9 <= target.y <= WORKSPACE_Y_M[1] + 1e-9:
             self.violations.append(f"pose y={target.y} outside the workspace {WORKSPACE_Y_M}")
-        if abs(target.z - GRIPPER_HEIGHT_M) > 1e-9:
-            self.violations.append(f"pose z={target.z} is not the gripper height {GRIPPER_HEIGHT_M}")
+        if abs(target.z - GEN3_GRIPPER_HEIGHT_M) > 1e-9:
+            self.violations.append(f"pose z={target.z} is not the gripper height {GEN3_GRIPPER_HEIGHT_M}")
         if not 0 < speed.translation <= self.speed_ceiling_m_s:
             self.violations.append(
                 f"translation speed {speed.translation} outside (0, {self.speed_ceiling_m_s}]"

@@ -304,6 +304,24 @@ def test_the_simulated_gen3_is_a_drop_in_arm_driver() -> None:
         env.close()
 
 
+def test_the_gen3s_tool_ends_just_above_the_block_it_is_at() -> None:
+    """So that the camera sees the tool touch its block: 11 cm above the blocks, no Kinova policy learnt."""
+    from sim.blocks import BLOCK_SIZE_M, TABLE_TOP_Z_M
+    from sim.kinova_blocks import GEN3_TOOL_LENGTH_M
+
+    env = make("kinova", render_images=False)
+    try:
+        env.reset(seed=0, options={"intent": 2})
+        for _ in range(60):
+            _, _, _, _, info = env.step(oracle_action(env))
+        tool_tip_z = env.unwrapped.arm.gripper_position()[2] - GEN3_TOOL_LENGTH_M
+    finally:
+        env.close()
+    assert info["on_target"]
+    block_top_z = TABLE_TOP_Z_M + BLOCK_SIZE_M[2]
+    assert block_top_z < tool_tip_z < block_top_z + 0.03
+
+
 @pytest.mark.parametrize("world", ARM_WORLDS)
 def test_random_views_are_reproducible_and_see_blocks_and_bare_table(world: str) -> None:
     views = list(random_views(world, 40, seed=3, image_size=SMALL))

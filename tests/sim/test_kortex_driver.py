@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from kortex_standin import HOME_HANDLE, KClientException, KServerException, StandInArm
 
-from sim.arm import GRIPPER_HEIGHT_M, STEP_M, WORKSPACE_X_M, WORKSPACE_Y_M
+from sim.arm import GEN3_GRIPPER_HEIGHT_M, STEP_M, WORKSPACE_X_M, WORKSPACE_Y_M
 from sim.kortex_driver import (
     HOME_XY_M,
     KORTEX_WHEEL,
@@ -97,7 +97,7 @@ def test_home_goes_to_the_stored_home_then_points_down_above_the_workspace_centr
     driver.home()
     motions = arm.motions()
     assert motions[0].method == "ExecuteActionFromReference" and motions[0].message == HOME_HANDLE
-    assert arm.reach_targets() == [pytest.approx((*HOME_XY_M, GRIPPER_HEIGHT_M))]
+    assert arm.reach_targets() == [pytest.approx((*HOME_XY_M, GEN3_GRIPPER_HEIGHT_M))]
     gripper = [entry.message for entry in arm.sent if entry.method == "SendGripperCommand"]
     assert len(gripper) == 1 and gripper[0].gripper.finger[0].value == 1.0
     assert driver.gripper_xy() == pytest.approx(HOME_XY_M, abs=1e-3)  # measured: within a millimetre
@@ -121,7 +121,7 @@ def test_targets_are_clipped_to_the_workspace_box(driver: KortexArmDriver, arm: 
     assert last == pytest.approx((WORKSPACE_X_M[1], WORKSPACE_Y_M[0]))
     for x, y, z in arm.reach_targets():
         assert WORKSPACE_X_M[0] <= x <= WORKSPACE_X_M[1] and WORKSPACE_Y_M[0] <= y <= WORKSPACE_Y_M[1]
-        assert z == pytest.approx(GRIPPER_HEIGHT_M)
+        assert z == pytest.approx(GEN3_GRIPPER_HEIGHT_M)
     assert arm.violations == []
 
 
