@@ -22,7 +22,13 @@ from backend.blobs import BlobStore
 from backend.db import get_session_factory
 from backend.deps import get_blob_store
 from backend.services import model_versions
-from backend.services.attempts import ATTEMPT_SOURCE, Command, household_commands, write_status
+from backend.services.attempts import (
+    ATTEMPT_SOURCE,
+    Command,
+    commands_with_an_is_answer,
+    household_commands,
+    write_status,
+)
 from backend.services.snapshots import create_snapshot
 from core.paths import data_subdir
 from core.robots import world_of_kind
@@ -64,7 +70,8 @@ def try_commands(
     make_env: MakeEnv | None = None,
     capture: Capture = capture_views,
 ) -> dict[str, Any]:
-    """`attempts` attempts spread evenly over the command keys `commands`, then `random_views` random views.
+    """`attempts` attempts spread evenly over the command keys `commands` (none: every command, those with no
+    *is* answer yet favoured, `attempt_cycle`), then `random_views` random views.
     Raises AttemptRefused for a robot with no model, a household with no recordings, a command with none.
     A simulated robot plays in its world; a real one (`worker.real_arm`) passes its `make_env` and
     `capture`."""
@@ -79,12 +86,15 @@ def try_commands(
         robot = _robot(session, robot_id, household_id, simulated=make_env is None)
         world = world_of_kind(robot.kind)
         asked = _commands(session, household_id, commands)
+        if not commands:  # the household left the choice to the robot
+            asked = attempt_cycle(asked, commands_with_an_is_answer(session, robot.id))
         model = robot_model(session, blobs, robot, world)
         var = load_var(model.var_path).eval()
         goals = _goal_embeddings(session, blobs, asked, var, front_end_of(model.var_path), world)
         rng = np.random.default_rng(secrets.randbits(31))
         created = []
-        report("running", f"trying {attempts} times: {', '.join(c.name for c in asked)}", 0)
+        names = ", ".join(dict.fromkeys(command.name for command in asked))
+        report("running", f"trying {attempts} times: {names}", 0)
         with policy_player(model.policy_path, var, world, room_of(robot.settings or {}), make_env) as play:
             for index in range(attempts):
                 command = asked[index % len(asked)]
@@ -103,6 +113,14 @@ def try_commands(
         "random_views": random_views,
         "snapshot_ids": created,
     }
+
+
+def attempt_cycle(commands: list[Command], answered: set[str]) -> list[Command]:
+    """The order attempts take the commands in, round and round: commands that no view has an *is* answer
+    for yet come first and twice per round, since an attempt that ends at its command gives that command its
+    first positive (and until every command has one, the robot's success cannot be measured)."""
+    missing = [command for command in commands if command.key not in answered]
+    return missing + commands
 
 
 def _reporter(task_id: str | None, robot_id: int, random_views: int) -> Callable[[str, str, int], None]:

@@ -48,15 +48,18 @@ def test_the_triplet_count_agrees_with_the_api_and_too_few_are_refused_with_how_
             load_household(session, get_blob_store(), robot, 16, "speech", 0.25, 0, min_triplets=expected + 5)
 
 
-def test_a_command_is_known_from_an_is_answer_on_a_view_that_gives_no_triplet_yet(
+def test_a_command_is_known_from_an_is_answer_on_a_view_that_gives_no_triplet_and_attempts_favour_others(
     household,
     stack,  # type: ignore[no-untyped-def]
 ) -> None:
     """Simulated success is measured once every command has an *is* answer, even one on a view with no *is
-    not* answer yet (such a view gives no triplet)."""
+    not* answer yet (such a view gives no triplet); until then the robot's attempts favour the commands that
+    have none."""
     from backend.db import get_session_factory
     from backend.deps import get_blob_store
+    from backend.services.attempts import commands_with_an_is_answer, household_commands
     from varbot.simulated_household import VOICES, WORDS
+    from worker.attempts import attempt_cycle
     from worker.household import load_household
 
     robot = household.client.post("/api/v1/robots", json={"name": "is-only", "kind": "kuka-sim"}).json()
@@ -72,9 +75,15 @@ def test_a_command_is_known_from_an_is_answer_on_a_view_that_gives_no_triplet_ye
     with get_session_factory()() as session:
         robot = session.get_one(models.Robot, robot_id)
         data = load_household(session, get_blob_store(), robot, 16, "speech", 0.0, 0, min_triplets=1)
+        answered = commands_with_an_is_answer(session, robot_id)
+        commands = list(household_commands(session, robot.household_id).values())
     intent_of = dict(zip(data.clip_ids.tolist(), data.clip_intent.tolist(), strict=True))
     assert intent_of[household.clip_ids[(WORDS[second], VOICES[1])]] == second, "known from the lone 'is'"
     assert intent_of[household.clip_ids[(WORDS[first], VOICES[1])]] == first
+    assert answered == {f"name:{WORDS[first]}", f"name:{WORDS[second]}"}
+    missing = [command for command in commands if command.key not in answered]
+    assert len(missing) == 2
+    assert attempt_cycle(commands, answered) == [*missing, *commands], "the robot tries those first, twice"
 
 
 def views_at_two_targets(household, robot_id: int) -> dict:  # type: ignore[no-untyped-def]
