@@ -38,7 +38,7 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import replace
+from dataclasses import asdict, replace
 from pathlib import Path
 
 from conditions import Conditions, describe
@@ -252,7 +252,8 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
             previous = store.get(entry, {})
             if previous.get("tag") != args.tag:  # a new run of the row: show none of the old run's figures
                 previous = {"row": row, "method": method, "tag": args.tag}
-            store[entry] = {**previous, "status": "running", "progress": record}
+            # the config: an interrupted run still says which seed and settings it ran with
+            store[entry] = {**previous, "config": asdict(config), "status": "running", "progress": record}
             save_results(results)
         return args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
 
@@ -391,11 +392,13 @@ def mark_interrupted(store: dict, entry: str) -> None:
     if record.get("status") != "running":
         return
     steps = record.get("progress", {}).get("global_step", 0)
+    config = record.get("config") or {}
+    of = f" of {config['total_steps']:,}, seed {config['seed']}" if config else ""
     store[entry] = {
         **record,
         "status": "interrupted",
-        "note": f"stopped at {steps:,} env steps (its last checkpoint may be earlier); the same command with "
-        "--resume takes it up again from its run directory",
+        "note": f"stopped at {steps:,} env steps{of} (its last checkpoint may be earlier); the same command "
+        "with --resume takes it up again from its run directory",
     }
 
 

@@ -130,11 +130,13 @@ def test_runs_whose_reward_paid_differently_are_never_seeds_of_one_recipe():
 def test_a_run_stopped_by_a_signal_is_stored_as_interrupted_with_how_to_take_it_up_again():
     from reproduce import mark_interrupted
 
-    running = {"row": "kuka-wordset", "tag": "t", "status": "running", "progress": {"global_step": 16000}}
+    running = {"row": "kuka-wordset", "tag": "t", "status": "running", "progress": {"global_step": 16000},
+               "config": {"total_steps": 400000, "seed": 2}}  # fmt: skip
     store = {"kuka-wordset:var": running, "done": {"status": "complete"}}
     mark_interrupted(store, "kuka-wordset:var")
     mark_interrupted(store, "done")
     assert store["kuka-wordset:var"]["status"] == "interrupted"
-    assert "stopped at 16,000 env steps" in store["kuka-wordset:var"]["note"]
+    assert "stopped at 16,000 env steps of 400,000, seed 2" in store["kuka-wordset:var"]["note"]
+    assert store["kuka-wordset:var"]["config"]["seed"] == 2, "its records list shows the seed"
     assert "--resume" in store["kuka-wordset:var"]["note"]
     assert store["done"] == {"status": "complete"}
