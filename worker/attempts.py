@@ -90,11 +90,11 @@ def try_commands(
             asked = attempt_cycle(asked, commands_with_an_is_answer(session, robot.id))
         model = robot_model(session, blobs, robot, world)
         var = load_var(model.var_path).eval()
-        goals = _goal_embeddings(session, blobs, asked, var, front_end_of(model.var_path), world)
+        commands_once = list(dict.fromkeys(asked))
+        goals = _goal_embeddings(session, blobs, commands_once, var, front_end_of(model.var_path), world)
         rng = np.random.default_rng(secrets.randbits(31))
         created = []
-        names = ", ".join(dict.fromkeys(command.name for command in asked))
-        report("running", f"trying {attempts} times: {names}", 0)
+        report("running", f"trying {attempts} times: {', '.join(c.name for c in commands_once)}", 0)
         with policy_player(model.policy_path, var, world, room_of(robot.settings or {}), make_env) as play:
             for index in range(attempts):
                 command = asked[index % len(asked)]

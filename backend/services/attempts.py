@@ -57,12 +57,16 @@ def household_commands(session: Session, household_id: int) -> dict[str, Command
 
 
 def commands_with_an_is_answer(session: Session, robot_id: int) -> set[str]:
-    """Keys of the commands for which some view of this robot has been answered *is*."""
+    """Keys of the commands for which some view of this robot has been answered *is* (live recordings)."""
     rows = session.execute(
         select(models.Clip.id, models.Clip.name)
         .join(models.Label, models.Label.clip_id == models.Clip.id)
         .join(models.Snapshot, models.Snapshot.id == models.Label.snapshot_id)
-        .where(models.Snapshot.robot_id == robot_id, models.Label.verdict == Verdict.IS.value)
+        .where(
+            models.Snapshot.robot_id == robot_id,
+            models.Label.verdict == Verdict.IS.value,
+            models.Clip.deleted_at.is_(None),
+        )
         .distinct()
     ).all()
     return {command_key(clip_id, name) for clip_id, name in rows}
