@@ -113,7 +113,8 @@ def _own_variant(variant_text: str) -> tuple[Path, str]:
                     (partial / "espeak-ng-data" / folder / entry.name).symlink_to(entry)
         (partial / "espeak-ng-data" / "voices" / "!v").mkdir()
         (partial / "espeak-ng-data" / "voices" / "!v" / name).write_text(variant_text)
-        with contextlib.suppress(OSError):  # another process made it first: theirs is the same
+        # workers forked after the folder was made share it: another may have made this variant first
+        with contextlib.suppress(OSError):
             partial.rename(root)
         shutil.rmtree(partial, ignore_errors=True)
     return root, name

@@ -111,13 +111,14 @@ def test_every_language_trains_with_mixed_voices_that_sound_unlike_any_named_var
     texts = [mixed_variant(rng, f"mix{index:02d}") for index in range(3)]
     assert len(set(texts)) == 3
     for text in texts:
-        for line in text.splitlines():
-            if line.startswith("formant"):
-                _, formant, frequency, strength, width = line.split()
-                assert int(formant) in MIXED_FORMANTS
-                assert MIXED_FREQUENCY[0] <= int(frequency) <= MIXED_FREQUENCY[1]
-                assert MIXED_STRENGTH[0] <= int(strength) <= MIXED_STRENGTH[1]
-                assert MIXED_WIDTH[0] <= int(width) <= MIXED_WIDTH[1]
+        formants = [line for line in text.splitlines() if line.startswith("formant")]
+        assert len(formants) == len(MIXED_FORMANTS)
+        for line in formants:
+            _, formant, frequency, strength, width = line.split()
+            assert int(formant) in MIXED_FORMANTS
+            assert MIXED_FREQUENCY[0] <= int(frequency) <= MIXED_FREQUENCY[1]
+            assert MIXED_STRENGTH[0] <= int(strength) <= MIXED_STRENGTH[1]
+            assert MIXED_WIDTH[0] <= int(width) <= MIXED_WIDTH[1]
     named = {
         engines.espeak("deux", variant, "fr", 50, 160) for variant in (*TRAIN_VARIANTS, *HELD_OUT_VARIANTS)
     }
