@@ -104,6 +104,7 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument("--test-views", type=int, default=1000, help="held-out views (seed 1000)")
     parser.add_argument("--image-size", type=int, default=48)
     parser.add_argument("--batch-size", type=int, default=64)
+    parser.add_argument("--sound-hidden", type=int, help="width of f_S's layers (default: the VAR's, 128)")
     parser.add_argument("--parallel", type=int, default=2, help="runs trained at once, one thread each")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--output", default=str(OUTPUT), help="where the JSON goes")
@@ -115,6 +116,7 @@ def run_dir(run: Run, args: argparse.Namespace) -> Path:
 
     copies = f"-speed{run.speed_copies}" if run.speed_copies else ""
     copies += f"-voice{run.voice_copies}" if run.voice_copies else ""
+    copies += f"-width{args.sound_hidden}" if args.sound_hidden else ""
     # the corpus's manifest hash: a VAR trained before the corpus changed is never taken as this run's
     name = (
         f"{run.sounds}-{run.front_end}-rooms{run.room_copies}{copies}-{args.views}views-{args.image_size}px-"
@@ -145,6 +147,7 @@ def start_training(run: Run, train_views, args: argparse.Namespace):
         "--speed-copies", str(run.speed_copies), "--voice-copies", str(run.voice_copies),
         "--run-dir", str(folder), "--max-steps", str(args.steps), "--batch-size", str(args.batch_size),
         "--threads", "1", "--seed", str(args.seed),
+        *(["--sound-hidden", str(args.sound_hidden)] if args.sound_hidden else []),
     ]  # fmt: skip
     log = open(folder.with_suffix(".log"), "w")  # noqa: SIM115 (closed when the process ends)
     return subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT), log

@@ -112,6 +112,9 @@ def train(
     lr: float = 2e-3,
     margin: float = 1.0,
     embedding_dim: int = 3,
+    sound_hidden: Annotated[
+        int | None, typer.Option(help="Width of f_S's layers (default: the same as f_I's head, 128).")
+    ] = None,
     front_end: Annotated[
         str,
         typer.Option(
@@ -165,7 +168,7 @@ def train(
             batch_size=batch_size,
             lr=lr,
             margin=margin,
-            model=VARConfig(embedding_dim=embedding_dim, front_end=front_end),
+            model=VARConfig(embedding_dim=embedding_dim, front_end=front_end, sound_hidden=sound_hidden),
             augment=augment,
             sound_speakers=tuple(speakers.split(",")) if speakers else None,
             sound_speed_copies=speed_copies,

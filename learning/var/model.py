@@ -26,9 +26,14 @@ class VARConfig:
     sound_channels: tuple[int, ...] = (32, 64, 96)
     hidden: int = 128
     front_end: str = DEFAULT_FRONT_END  # a checkpoint written before front ends existed is MFCC
+    sound_hidden: int | None = None  # f_S's width; None: `hidden` (as every checkpoint before it)
 
     def __post_init__(self) -> None:
         check_front_end(self.front_end)
+
+    @property
+    def sound_width(self) -> int:
+        return self.sound_hidden or self.hidden
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -88,9 +93,9 @@ class SoundEncoder(nn.Module):
             channels = out_channels
         self.features = nn.Sequential(*layers)
         self.head = nn.Sequential(
-            nn.Linear(2 * channels, config.hidden),
+            nn.Linear(2 * channels, config.sound_width),
             nn.ReLU(inplace=True),
-            nn.Linear(config.hidden, config.embedding_dim),
+            nn.Linear(config.sound_width, config.embedding_dim),
         )
         # Per-coefficient standardisation, set from the training corpus (`set_sound_statistics`); silence (all
         # zeros) stays one fixed input after it.
@@ -111,11 +116,12 @@ class EmbeddingSoundEncoder(nn.Module):
     def __init__(self, config: VARConfig) -> None:
         super().__init__()
         values = VALUES_PER_FRAME[config.front_end]
-        self.frame = nn.Sequential(nn.Linear(values, config.hidden), nn.ReLU(inplace=True))
+        width = config.sound_width
+        self.frame = nn.Sequential(nn.Linear(values, width), nn.ReLU(inplace=True))
         self.head = nn.Sequential(
-            nn.Linear(2 * config.hidden, config.hidden),
+            nn.Linear(2 * width, width),
             nn.ReLU(inplace=True),
-            nn.Linear(config.hidden, config.embedding_dim),
+            nn.Linear(width, config.embedding_dim),
         )
         self.register_buffer("feature_mean", torch.zeros(values))
         self.register_buffer("feature_std", torch.ones(values))

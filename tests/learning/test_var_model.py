@@ -39,6 +39,16 @@ def test_other_embedding_dimensions_are_possible() -> None:
     assert var.encode_image(torch.zeros(1, 32, 32, 3, dtype=torch.uint8)).shape == (1, 8)
 
 
+def test_f_s_may_be_wider_than_f_i_and_a_checkpoint_from_before_keeps_f_i_s_width(tmp_path) -> None:
+    for front_end in ("mfcc", "speech-embedding-fast"):
+        wide = VAR(VARConfig(image_size=32, front_end=front_end, sound_hidden=256))
+        assert wide.sound_encoder.head[-1].in_features == 256
+        assert wide.image_encoder.head[-1].in_features == 128
+        assert load_var(save_var(wide, tmp_path / "wide.pt")).config.sound_hidden == 256
+    older = {k: v for k, v in VARConfig(image_size=32).to_dict().items() if k != "sound_hidden"}
+    assert VAR(VARConfig.from_dict(older)).sound_encoder.head[-1].in_features == 128
+
+
 def test_images_are_normalised_inside_the_model(var: VAR) -> None:
     """The encoder takes raw uint8 pixels, maps them to [-1, 1] itself, and refuses floats."""
     captured = {}
