@@ -57,17 +57,6 @@ MIXED_FREQUENCY = (70, 140)
 MIXED_STRENGTH = (60, 120)
 MIXED_WIDTH = (75, 150)
 MIXED_PITCH_LOW_HZ = (65, 170)  # the high end of the pitch range is 1.3-1.6 times the low end
-# ... and the voice's quality, within espeak-ng's documented ranges and the training variants' values: the
-# synthesiser (0 = espeak-ng's own; klatt 1, 2, 3 and 6 are the modes training variants use), pitch flutter,
-# creak (roughness), the strength of voiced sounds and of consonant noise, and the tone (amplitude 0-255 of
-# the frequency response at 600, 1200 and 2000 Hz).
-MIXED_KLATT = (0, 1, 2, 3, 6)
-MIXED_FLUTTER = (0, 10)
-MIXED_ROUGHNESS = (0, 7)
-MIXED_VOICING = (30, 230)
-MIXED_CONSONANTS = (50, 130)
-MIXED_TONE_HZ = (600, 1200, 2000)
-MIXED_TONE_AMPLITUDE = (40, 255)
 ESPEAK_SPEED = (135, 195)  # words per minute
 
 SOUNDFONT_TRAIN = "FluidR3_GM"
@@ -232,7 +221,7 @@ def multilingual_speakers(
 
 
 def mixed_variant(rng: np.random.Generator, name: str) -> str:
-    """An espeak-ng variant file with formants, pitch and voice quality drawn from the MIXED_* ranges."""
+    """An espeak-ng voice variant file with formants and pitch drawn from the MIXED_* ranges."""
     low = int(rng.integers(*MIXED_PITCH_LOW_HZ, endpoint=True))
     lines = ["language variant", f"name {name}", f"pitch {low} {round(low * rng.uniform(1.3, 1.6))}"]
     for formant in MIXED_FORMANTS:
@@ -241,7 +230,7 @@ def mixed_variant(rng: np.random.Generator, name: str) -> str:
             for bounds in (MIXED_FREQUENCY, MIXED_STRENGTH, MIXED_WIDTH)
         )
         lines.append(f"formant {formant} {' '.join(map(str, settings))}")
-    return "\n".join(lines + _mixed_quality(rng)) + "\n"
+    return "\n".join(lines) + "\n"
 
 
 def mixed_voice_ranges() -> dict[str, object]:
@@ -252,30 +241,7 @@ def mixed_voice_ranges() -> dict[str, object]:
         "strength": MIXED_STRENGTH,
         "width": MIXED_WIDTH,
         "pitch_low_hz": MIXED_PITCH_LOW_HZ,
-        "klatt": MIXED_KLATT,
-        "flutter": MIXED_FLUTTER,
-        "roughness": MIXED_ROUGHNESS,
-        "voicing": MIXED_VOICING,
-        "consonants": MIXED_CONSONANTS,
-        "tone_hz": MIXED_TONE_HZ,
-        "tone_amplitude": MIXED_TONE_AMPLITUDE,
     }
-
-
-def _mixed_quality(rng: np.random.Generator) -> list[str]:
-    def draw(bounds: tuple[int, int]) -> int:
-        return int(rng.integers(*bounds, endpoint=True))
-
-    klatt = int(rng.choice(MIXED_KLATT))
-    tone = " ".join(f"{hz} {draw(MIXED_TONE_AMPLITUDE)}" for hz in MIXED_TONE_HZ)
-    return [
-        *([f"klatt {klatt}"] if klatt else []),
-        f"flutter {draw(MIXED_FLUTTER)}",
-        f"roughness {draw(MIXED_ROUGHNESS)}",
-        f"voicing {draw(MIXED_VOICING)}",
-        f"consonants {draw(MIXED_CONSONANTS)} {draw(MIXED_CONSONANTS)}",
-        f"tone {tone}",
-    ]
 
 
 def _mixed_speakers(
