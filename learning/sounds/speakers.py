@@ -140,7 +140,7 @@ class MultilingualSize:
 
 
 MULTILINGUAL_SIZES = {
-    "default": MultilingualSize(train=32, unheard=12, room=4, variations=3, mixed=32),
+    "default": MultilingualSize(train=32, unheard=12, room=4, variations=3, mixed=64),
     "small": MultilingualSize(train=2, unheard=1, room=1, variations=1, mixed=1),
 }
 
