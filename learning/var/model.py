@@ -30,6 +30,8 @@ class VARConfig:
 
     def __post_init__(self) -> None:
         check_front_end(self.front_end)
+        if self.sound_hidden is not None and self.sound_hidden < 1:
+            raise ValueError(f"f_S's width must be 1 or more, not {self.sound_hidden}: leave it out for 128.")
 
     @property
     def sound_width(self) -> int:

@@ -47,6 +47,8 @@ def test_f_s_may_be_wider_than_f_i_and_a_checkpoint_from_before_keeps_f_i_s_widt
         assert load_var(save_var(wide, tmp_path / "wide.pt")).config.sound_hidden == 256
     older = {k: v for k, v in VARConfig(image_size=32).to_dict().items() if k != "sound_hidden"}
     assert VAR(VARConfig.from_dict(older)).sound_encoder.head[-1].in_features == 128
+    with pytest.raises(ValueError, match="width must be 1 or more, not 0"):
+        VARConfig(sound_hidden=0)
 
 
 def test_images_are_normalised_inside_the_model(var: VAR) -> None:
