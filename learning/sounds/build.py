@@ -32,7 +32,6 @@ from learning.sounds.speakers import (
     Profile,
     Speaker,
     instruments,
-    mixed_voice_ranges,
     multilingual_speakers,
     speech_speakers,
 )
@@ -408,7 +407,6 @@ def _recipe(set_: SoundSet, profile: Profile, seed: int, base: Path) -> dict[str
     if set_.languages:
         recipe["languages"] = [asdict(language) for language in set_.languages]
         recipe["multilingual_size"] = asdict(MULTILINGUAL_SIZES[profile.name])
-        recipe["mixed_voices"] = mixed_voice_ranges()
         recipe["draws"] = "one stream per tier and per speaker"
         recipe["rooms"] = asdict(RoomRanges()) | {"ism_order": ISM_ORDER}
     return recipe

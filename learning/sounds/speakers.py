@@ -49,14 +49,6 @@ HELD_OUT_VARIANTS = (
 TRAIN_ACCENTS = ("en-us", "en", "en-gb-x-rp")
 HELD_OUT_ACCENTS = ("en-gb-scotland", "en-029", "en-us-nyc", "en-gb-x-gbclan", "en-gb-x-gbcwmd")
 ESPEAK_PITCH = (25, 75)  # espeak-ng -p, 0..99
-# Mixed voices: espeak-ng variants written for training only. Each formant's frequency, strength and width
-# (in % of espeak-ng's defaults) and the pitch range are drawn from ranges about as wide as the training
-# variants' own, so training hears voices between and around its 24 named variants, not only those.
-MIXED_FORMANTS = (1, 2, 3, 4, 5)
-MIXED_FREQUENCY = (70, 140)
-MIXED_STRENGTH = (60, 120)
-MIXED_WIDTH = (75, 150)
-MIXED_PITCH_LOW_HZ = (65, 170)  # the high end of the pitch range is 1.3-1.6 times the low end
 ESPEAK_SPEED = (135, 195)  # words per minute
 
 SOUNDFONT_TRAIN = "FluidR3_GM"
@@ -128,6 +120,19 @@ PROFILES = {p.name: p for p in (DEFAULT, SMALL)}
 
 
 @dataclass(frozen=True)
+class MixedVoices:
+    """Mixed voices: espeak-ng variants written for training only. Each formant's frequency, strength and
+    width (in % of espeak-ng's defaults) and the pitch range are drawn from ranges about as wide as the
+    training variants' own, so training hears voices between and around its 24 named variants."""
+
+    formants: tuple[int, ...] = (1, 2, 3, 4, 5)
+    frequency: tuple[int, int] = (70, 140)
+    strength: tuple[int, int] = (60, 120)
+    width: tuple[int, int] = (75, 150)
+    pitch_low_hz: tuple[int, int] = (65, 170)  # the high end of the pitch range is 1.3-1.6 times the low end
+
+
+@dataclass(frozen=True)
 class MultilingualSize:
     """Speakers per language of a multilingual set (kept apart from Profile, whose fields are in every other
     set's recipe)."""
@@ -137,6 +142,7 @@ class MultilingualSize:
     room: int
     variations: int  # per speaker and word
     mixed: int = 0  # training speakers with a mixed voice, on top of `train`
+    mixed_voices: MixedVoices = MixedVoices()  # what they are drawn from (in the recipe, as every field here)
 
 
 MULTILINGUAL_SIZES = {
@@ -215,42 +221,29 @@ def multilingual_speakers(
             drawn = _espeak_speakers(rng, count, variants, accents, split, f"{language.code}-{tag}")
             speakers += [(language, speaker) for speaker in drawn]
         rng = np.random.default_rng([seed, 2, index, len(tiers)])
-        mixed = _mixed_speakers(rng, size.mixed, language.train_accents, f"{language.code}-x")
+        mixed = _mixed_speakers(rng, size, language.train_accents, f"{language.code}-x")
         speakers += [(language, speaker) for speaker in mixed]
     return speakers
 
 
-def mixed_variant(rng: np.random.Generator, name: str) -> str:
-    """An espeak-ng voice variant file with formants and pitch drawn from the MIXED_* ranges."""
-    low = int(rng.integers(*MIXED_PITCH_LOW_HZ, endpoint=True))
+def mixed_variant(rng: np.random.Generator, name: str, ranges: MixedVoices) -> str:
+    """An espeak-ng voice variant file with formants and pitch drawn from `ranges`."""
+    low = int(rng.integers(*ranges.pitch_low_hz, endpoint=True))
     lines = ["language variant", f"name {name}", f"pitch {low} {round(low * rng.uniform(1.3, 1.6))}"]
-    for formant in MIXED_FORMANTS:
-        settings = (
-            int(rng.integers(*bounds, endpoint=True))
-            for bounds in (MIXED_FREQUENCY, MIXED_STRENGTH, MIXED_WIDTH)
-        )
+    for formant in ranges.formants:
+        bounds = (ranges.frequency, ranges.strength, ranges.width)
+        settings = (int(rng.integers(*low_high, endpoint=True)) for low_high in bounds)
         lines.append(f"formant {formant} {' '.join(map(str, settings))}")
     return "\n".join(lines) + "\n"
 
 
-def mixed_voice_ranges() -> dict[str, object]:
-    """Every range a mixed voice is drawn from (in a corpus's recipe: changing one rebuilds the corpus)."""
-    return {
-        "formants": MIXED_FORMANTS,
-        "frequency": MIXED_FREQUENCY,
-        "strength": MIXED_STRENGTH,
-        "width": MIXED_WIDTH,
-        "pitch_low_hz": MIXED_PITCH_LOW_HZ,
-    }
-
-
 def _mixed_speakers(
-    rng: np.random.Generator, count: int, accents: tuple[str, ...], tag: str
+    rng: np.random.Generator, size: MultilingualSize, accents: tuple[str, ...], tag: str
 ) -> list[Speaker]:
     speakers = []
-    for index in range(count):
+    for index in range(size.mixed):
         name = f"mix{index:02d}"
-        variant_text = mixed_variant(rng, name)
+        variant_text = mixed_variant(rng, name, size.mixed_voices)
         speakers.append(_espeak_speaker(rng, f"{tag}{index:02d}", name, accents, TRAIN, variant_text))
     return speakers
 

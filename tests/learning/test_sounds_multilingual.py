@@ -9,19 +9,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from learning.sounds import SoundCorpus, build, engines, load_corpus, speakers
+from learning.sounds import SoundCorpus, build, engines, load_corpus
 from learning.sounds.build import MANIFEST, build_corpora
 from learning.sounds.sets import SOUND_SETS
 from learning.sounds.speakers import (
     HELD_OUT_ACCENTS,
     HELD_OUT_VARIANTS,
-    MIXED_FORMANTS,
-    MIXED_FREQUENCY,
-    MIXED_STRENGTH,
-    MIXED_WIDTH,
     MULTILINGUAL_SIZES,
     TRAIN_ACCENTS,
     TRAIN_VARIANTS,
+    MixedVoices,
     mixed_variant,
 )
 from learning.var.dataset import SoundBank
@@ -102,14 +99,18 @@ def test_more_training_speakers_leave_the_unheard_speakers_and_their_clips_as_th
     assert planned_unheard(16) == planned_unheard(32)
 
 
-def test_a_corpus_is_built_again_when_a_mixed_voice_range_changes(small_root: Path, monkeypatch) -> None:
+def test_a_corpus_is_built_again_when_its_mixed_voices_change(small_root: Path, monkeypatch) -> None:
     def logged_build() -> list[str]:
         lines: list[str] = []
         build_corpora([NAME], profile="small", root=small_root, progress=False, log=lines.append)
         return lines
 
     assert any("up to date" in line for line in logged_build())
-    monkeypatch.setattr(speakers, "MIXED_WIDTH", (MIXED_WIDTH[0] + 1, MIXED_WIDTH[1]))
+    small = MULTILINGUAL_SIZES["small"]
+    width = small.mixed_voices.width
+    wider = dataclasses.replace(small.mixed_voices, width=(width[0] + 1, width[1]))
+    sizes = {**MULTILINGUAL_SIZES, "small": dataclasses.replace(small, mixed_voices=wider)}
+    monkeypatch.setattr(build, "MULTILINGUAL_SIZES", sizes)
     recipe = build._recipe(SET, build.PROFILES["small"], 0, small_root / "sounds")
     assert not build._is_cached(small_root / "sounds" / NAME, recipe)
 
@@ -120,17 +121,18 @@ def test_every_language_trains_with_mixed_voices_that_sound_unlike_any_named_var
     mixed = [r for r in records(small_root) if "variant_text" in r["speaker_params"]]
     assert {r["language"] for r in mixed} == {language.code for language in SET.languages}
     rng = np.random.default_rng(0)
-    texts = [mixed_variant(rng, f"mix{index:02d}") for index in range(3)]
+    ranges = MixedVoices()
+    texts = [mixed_variant(rng, f"mix{index:02d}", ranges) for index in range(3)]
     assert len(set(texts)) == 3
     for text in texts:
         formants = [line for line in text.splitlines() if line.startswith("formant")]
-        assert len(formants) == len(MIXED_FORMANTS)
+        assert len(formants) == len(ranges.formants)
         for line in formants:
             _, formant, frequency, strength, width = line.split()
-            assert int(formant) in MIXED_FORMANTS
-            assert MIXED_FREQUENCY[0] <= int(frequency) <= MIXED_FREQUENCY[1]
-            assert MIXED_STRENGTH[0] <= int(strength) <= MIXED_STRENGTH[1]
-            assert MIXED_WIDTH[0] <= int(width) <= MIXED_WIDTH[1]
+            assert int(formant) in ranges.formants
+            assert ranges.frequency[0] <= int(frequency) <= ranges.frequency[1]
+            assert ranges.strength[0] <= int(strength) <= ranges.strength[1]
+            assert ranges.width[0] <= int(width) <= ranges.width[1]
     named = {
         engines.espeak("deux", variant, "fr", 50, 160) for variant in (*TRAIN_VARIANTS, *HELD_OUT_VARIANTS)
     }
