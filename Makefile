@@ -6,7 +6,6 @@ VENV    ?= .venv
 PYTHON  ?= python3.11
 PY      := $(VENV)/bin/python
 STAMP   := $(VENV)/.installed
-TEST_LOG ?= $(VENV)/pytest.log
 export VARBOT_DATA_DIR ?= $(CURDIR)/data
 
 .PHONY: run test bench lint fmt system-packages clean
@@ -25,10 +24,11 @@ system-packages:
 run: $(STAMP)
 	$(VENV)/bin/varbot up
 
-# pytest's output is kept in $(TEST_LOG); the summary at the end fails on a failure, a skip or no tests at all.
+# Two pytest runs side by side (the worker and browser tests, the rest), their output kept in $(VENV)/pytest-*.log; the
+# summary at the end fails on a failure, a skip or no tests at all. PYTEST_ARGS go to both runs.
 test: $(STAMP) system-packages
 	$(PY) -m ruff check .
-	$(PY) -m pytest 2>&1 | tee $(TEST_LOG); $(PY) scripts/test_summary.py $(TEST_LOG) $${PIPESTATUS[0]}
+	$(PY) scripts/run_tests.py $(VENV) $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	$(PY) bench/env_speed.py

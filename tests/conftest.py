@@ -1,4 +1,6 @@
-"""Suite-wide settings: tests never write into the real data directory, and the browser tests run last."""
+"""Suite-wide settings: tests never write into the real data directory, and the browser tests run last when
+one pytest runs them all (`make test` runs them, after the worker tests, beside the rest:
+scripts/run_tests.py)."""
 
 import os
 import tempfile
