@@ -4,7 +4,9 @@ labels; a fine-tune with replay of the simulated training room runs; the gate sa
 change or worse. And what cannot work says why."""
 
 import io
+from pathlib import Path
 
+import pytest
 from conftest import TINY, Household, Stack, wait_until
 from PIL import Image
 
@@ -43,6 +45,22 @@ def _judge_every_attempt(household: Household, robot_id: int) -> list[str]:
         stored = household.client.post(f"/api/v1/attempts/{offered['snapshot']['id']}/answer", json=body)
         assert stored.status_code == 201, stored.text
         answers.append(stored.json()["shows"])
+
+
+def _var_only_version(robot_id: int, var: bytes) -> int:
+    """An active version with a VAR and no policy (a VAR fine-tune alone of a robot that had none)."""
+    from backend import models
+    from backend.db import get_session_factory
+    from backend.deps import get_blob_store
+    from backend.services import model_versions
+
+    with get_session_factory()() as session:
+        robot = session.get_one(models.Robot, robot_id)
+        version = model_versions.create_version(
+            session, robot, var_key=get_blob_store().put(var), policy_key=None, notes="VAR only"
+        )
+        model_versions.activate(session, version)
+        return version.id
 
 
 def _version_with_corpus(robot_id: int, base_var: bytes, sound_set: str) -> int:
@@ -111,10 +129,13 @@ def test_attempts_become_snapshots_answers_become_labels_and_a_fine_tune_with_re
 def test_what_cannot_be_attempted_or_replayed_says_why_and_what_to_do(
     stack: Stack, household: Household, base_model, training_worker
 ) -> None:  # type: ignore[no-untyped-def]
-    no_model = household.client.post("/api/v1/robots", json={"name": "bare", "kind": "kinova-sim"}).json()
-    refused = _attempts(household, no_model["id"], count=2)["status"]
-    assert refused["state"] == "refused" and "train or pick a base model first" in refused["message"]
-    assert not household.snapshots(no_model["id"]), "nothing was stored"
+    body = {"name": "var-only", "kind": "kuka-sim"}
+    no_policy = household.client.post("/api/v1/robots", json=body).json()["id"]
+    _var_only_version(no_policy, (base_model / "var.pt").read_bytes())
+    refused = _attempts(household, no_policy, count=2)["status"]
+    assert refused["state"] == "refused" and "has no policy to act with" in refused["message"]
+    assert "activate a version that has one" in refused["message"], "says what to do"
+    assert not household.snapshots(no_policy), "nothing was stored"
 
     robot = household.new_robot("replay-missing-arm", views=40)
     _version_with_corpus(robot, (base_model / "var.pt").read_bytes(), "retired-set")
@@ -122,6 +143,24 @@ def test_what_cannot_be_attempted_or_replayed_says_why_and_what_to_do(
     assert run["status"] == "failed" and "var_finetune" in run["error"]
     assert "replay corpus 'retired-set'" in run["error"] and "could not be built here" in run["error"]
     assert "replay_fraction 0" in run["error"], "says what to do instead"
+
+
+def test_a_robot_whose_world_has_no_base_model_anywhere_is_refused_with_what_to_do(
+    household: Household, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """Every simulated world ships a base model, so this is a deployment without the shipped folder."""
+    import worker.base_models
+    from backend import models
+    from backend.db import get_session_factory
+    from backend.deps import get_blob_store
+    from worker.attempts import AttemptRefused, robot_model
+
+    monkeypatch.setattr(worker.base_models, "SHIPPED_DIR", tmp_path / "not-shipped")
+    robot = household.client.post("/api/v1/robots", json={"name": "bare", "kind": "kinova-sim"}).json()
+    with get_session_factory()() as session, pytest.raises(AttemptRefused) as refused:
+        robot_model(session, get_blob_store(), session.get_one(models.Robot, robot["id"]), "kinova")
+    assert "has no model to act with: train or pick a base model first" in str(refused.value)
+    assert "varbot models build-base --world kinova" in str(refused.value)
 
 
 def test_a_command_with_no_recording_is_refused_before_the_robot_moves(household: Household) -> None:

@@ -114,7 +114,27 @@ def test_show_names_each_worlds_base_model_with_its_rooms_and_front_end(
         f"turtlebot: {turtlebot} ({record['built_at']}; trained in rooms: randomised; front end: {front_end})"
     )
     assert shown in result.output
-    assert "kinova: no base model for the kinova world" in result.output
+    kinova = SHIPPED_DIR / "kinova"
+    record = json.loads((kinova / "base.json").read_text())
+    front_end = "speech-embedding-fast"  # built on it: no refit
+    shown = f"kinova: {kinova} ({record['built_at']}; trained in rooms: randomised; front end: {front_end})"
+    assert shown in result.output
+
+
+def test_show_says_how_to_build_a_world_that_has_no_base_model(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A deployment without the shipped folder (an image built without it, say) and nothing built here."""
+    import worker.base_models
+
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "built"))
+    monkeypatch.setenv("VARBOT_DATA_DIR", str(tmp_path / "data"))
+    monkeypatch.setattr(worker.base_models, "SHIPPED_DIR", tmp_path / "not-shipped")
+    result = CliRunner().invoke(app, ["models", "show"])
+    assert result.exit_code == 0, result.output
+    for world in ("kuka", "kinova", "turtlebot"):
+        assert f"{world}: no base model for the {world} world" in result.output
+        assert f"build one with `varbot models build-base --world {world}`" in result.output
 
 
 def test_a_base_model_moves_to_the_fast_front_end_keeping_its_policy_and_image_encoder(
