@@ -24,7 +24,7 @@ system-packages:
 run: $(STAMP)
 	$(VENV)/bin/varbot up
 
-# Two pytest runs side by side (the worker and browser tests, the rest), their output kept in $(VENV)/pytest-*.log; the
+# Two pytest runs side by side (the browser tests, the rest), their output kept in $(VENV)/pytest-*.log; the
 # summary at the end fails on a failure, a skip or no tests at all. PYTEST_ARGS go to both runs.
 test: $(STAMP) system-packages
 	$(PY) -m ruff check .

@@ -2,11 +2,11 @@
 
     python scripts/run_tests.py LOG_DIR [extra pytest arguments for both runs]
 
-One stream runs the areas that drive the whole product in other processes (tests/worker: the API, Redis
-and Celery workers; tests/browser: Chromium, the app and its scenes, last as always), the other every other
-area, so that the two take about as long as each other. Each runs in its own process with its own temporary
-data directory, Redis and database, and in pytest's usual order, so no session fixture is shared between
-them. Each run's output goes to LOG_DIR/pytest-<stream>.log; a line every half minute says how far each has
+The browser tests (Chromium, the app, its scenes) run in one stream and every other area in the other.
+Each runs in its own process with its own temporary data directory, Redis and database, and in pytest's
+usual order, so no session fixture is shared between them. (tests/worker cannot join the browser stream: its
+modules and the browser's both import their own `conftest`, and only one of them is found by that name.)
+Each run's output goes to LOG_DIR/pytest-<stream>.log; a line every half minute says how far each has
 got, and at the end both logs are printed whole, then scripts/test_summary.py judges them together (a
 failure, a skip or no tests at all fails the run)."""
 
@@ -17,8 +17,8 @@ import time
 from pathlib import Path
 
 STREAMS = {
-    "worker-and-browser": ["tests/worker", "tests/browser"],
-    "the-rest": ["tests", "--ignore=tests/worker", "--ignore=tests/browser"],
+    "browser": ["tests/browser"],
+    "the-rest": ["tests", "--ignore=tests/browser"],
 }
 PERCENT = re.compile(r"\[\s*(\d+)%\]")
 REPORT_EVERY_S = 30

@@ -1,5 +1,5 @@
 """Suite-wide settings: tests never write into the real data directory, and the browser tests run last when
-one pytest runs them all (`make test` runs them, after the worker tests, beside the rest:
+one pytest runs them all (`make test` runs them in a stream of their own beside the rest:
 scripts/run_tests.py)."""
 
 import os
