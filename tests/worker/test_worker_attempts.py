@@ -47,18 +47,19 @@ def _judge_every_attempt(household: Household, robot_id: int) -> list[str]:
         answers.append(stored.json()["shows"])
 
 
-def _var_only_version(robot_id: int, var: bytes) -> int:
-    """An active version with a VAR and no policy (a VAR fine-tune alone of a robot that had none)."""
+def _active_version(robot_id: int, var: bytes, policy: bytes | None, notes: str) -> int:
+    """A version of the robot stored and made active the way a worker does it."""
     from backend import models
     from backend.db import get_session_factory
     from backend.deps import get_blob_store
     from backend.services import model_versions
 
+    blobs = get_blob_store()
     with get_session_factory()() as session:
-        robot = session.get_one(models.Robot, robot_id)
         version = model_versions.create_version(
-            session, robot, var_key=get_blob_store().put(var), policy_key=None, notes="VAR only"
-        )
+            session, session.get_one(models.Robot, robot_id), var_key=blobs.put(var),
+            policy_key=None if policy is None else blobs.put(policy), notes=notes,
+        )  # fmt: skip
         model_versions.activate(session, version)
         return version.id
 
@@ -67,23 +68,13 @@ def _version_with_corpus(robot_id: int, base_var: bytes, sound_set: str) -> int:
     """The tiny base model as the robot's active version, its VAR naming `sound_set` as its corpus."""
     import torch
 
-    from backend import models
-    from backend.db import get_session_factory
-    from backend.deps import get_blob_store
-    from backend.services import model_versions
     from worker.base_models import find_base
 
-    blobs = get_blob_store()
     payload = torch.load(io.BytesIO(base_var), weights_only=True)
     buffer = io.BytesIO()
     torch.save({**payload, "sound_set": sound_set}, buffer)
-    with get_session_factory()() as session:
-        version = model_versions.create_version(
-            session, session.get_one(models.Robot, robot_id), var_key=blobs.put(buffer.getvalue()),
-            policy_key=blobs.put(find_base("kuka").policy_path.read_bytes()), notes=f"replays {sound_set}",
-        )  # fmt: skip
-        model_versions.activate(session, version)
-        return version.id
+    policy = find_base("kuka").policy_path.read_bytes()
+    return _active_version(robot_id, buffer.getvalue(), policy, f"replays {sound_set}")
 
 
 def test_attempts_become_snapshots_answers_become_labels_and_a_fine_tune_with_replay_gives_a_verdict(
@@ -131,7 +122,7 @@ def test_what_cannot_be_attempted_or_replayed_says_why_and_what_to_do(
 ) -> None:  # type: ignore[no-untyped-def]
     body = {"name": "var-only", "kind": "kuka-sim"}
     no_policy = household.client.post("/api/v1/robots", json=body).json()["id"]
-    _var_only_version(no_policy, (base_model / "var.pt").read_bytes())
+    _active_version(no_policy, (base_model / "var.pt").read_bytes(), None, "VAR only")
     refused = _attempts(household, no_policy, count=2)["status"]
     assert refused["state"] == "refused" and "has no policy to act with" in refused["message"]
     assert "activate a version that has one" in refused["message"], "says what to do"
