@@ -24,8 +24,9 @@ system-packages:
 run: $(STAMP)
 	$(VENV)/bin/varbot up
 
-# Two pytest runs side by side (the browser tests, the rest), their output kept in $(VENV)/pytest-*.log; the
-# summary at the end fails on a failure, a skip or no tests at all. PYTEST_ARGS go to both runs.
+# Two pytest runs side by side (browser, scene, bench and PPO training tests; the rest), output kept in
+# $(VENV)/pytest-*.log; the summary at the end fails on a failure, a skip or no tests at all. PYTEST_ARGS go to
+# both runs.
 test: $(STAMP) system-packages
 	$(PY) -m ruff check .
 	$(PY) scripts/run_tests.py $(VENV) $(PYTEST_ARGS)
