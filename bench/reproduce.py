@@ -42,7 +42,7 @@ from dataclasses import asdict, replace
 from pathlib import Path
 
 from conditions import Conditions, describe
-from reproduce_records import RESULTS, load_results, records_command, save_results
+from reproduce_records import RESULTS, records_command, updated_results
 from reproduce_table import print_table
 from result_files import relative_path, resolve
 
@@ -208,7 +208,7 @@ def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
     return final
 
 
-def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
+def run_row(key: str, args: argparse.Namespace) -> dict:
     from core.paths import data_subdir
     from core.rooms import world_room
     from learning.rl.baselines import method_config, needs_var
@@ -248,13 +248,13 @@ def run_row(key: str, args: argparse.Namespace, results: dict) -> dict:
 
     def on_update(record: dict) -> bool:
         if record["update"] % 10 == 0:
-            store, entry = record_slot(results, key, args)
-            previous = store.get(entry, {})
-            if previous.get("tag") != args.tag:  # a new run of the row: show none of the old run's figures
-                previous = {"row": row, "method": method, "tag": args.tag}
-            # the config: an interrupted run still says which seed and settings it ran with
-            store[entry] = {**previous, "config": asdict(config), "status": "running", "progress": record}
-            save_results(results)
+            with updated_results() as results:
+                store, entry = record_slot(results, key, args)
+                previous = store.get(entry, {})
+                if previous.get("tag") != args.tag:  # a new run: none of the old run's figures
+                    previous = {"row": row, "method": method, "tag": args.tag}
+                # the config: an interrupted run still says which seed and settings it ran with
+                store[entry] = {**previous, "config": asdict(config), "status": "running", "progress": record}
         return args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
 
     summary = train_run(config, run_dir, loaded_var, resume=args.resume, on_update=on_update)
@@ -420,14 +420,33 @@ def main() -> None:
             sys.exit(
                 f"unknown row {key!r}: use world-sounds:method with world-sounds in {', '.join(WORLD_SOUNDS)}"
             )
-    results = load_results()
     for key in keys:
-        row, _, method = key.partition(":")
+        if not begin_run(key, args):
+            continue
+        try:
+            record = run_row(key, args)
+        except (KeyboardInterrupt, SystemExit):
+            with updated_results() as results:
+                mark_interrupted(*record_slot(results, key, args))
+            raise
+        with updated_results() as results:
+            store, entry = record_slot(results, key, args)
+            store[entry] = record
+    with updated_results() as results:
+        curves(results)
+        print_table(results)
+    print(describe(conditions.finish()))
+
+
+def begin_run(key: str, args: argparse.Namespace) -> bool:
+    """Makes room for a run of `key` in the file; False: it is complete already and --resume skips it."""
+    row, _, method = key.partition(":")
+    with updated_results() as results:
         store, entry = record_slot(results, key, args)
         done = store.get(entry, {})
         if args.resume and done.get("status") == "complete" and done.get("tag") == args.tag:
             print(f"{entry}: complete, skipped")
-            continue
+            return False
         if done.get("tag", args.tag) != args.tag and "success" in done:
             results.setdefault("earlier_runs", []).append(done)  # kept for comparison, not replaced
         if store is results["rows"]:  # a run taken up again is the row's record now, not an earlier one
@@ -436,18 +455,7 @@ def main() -> None:
                 for r in results.get("earlier_runs", [])
                 if (r.get("row"), r.get("method"), r.get("tag")) != (row, method, args.tag)
             ]
-        save_results(results)
-        try:
-            store[entry] = run_row(key, args, results)
-        except (KeyboardInterrupt, SystemExit):
-            mark_interrupted(store, entry)
-            save_results(results)
-            raise
-        save_results(results)
-    curves(results)
-    print_table(results)
-    save_results(results)
-    print(describe(conditions.finish()))
+    return True
 
 
 if __name__ == "__main__":

@@ -9,9 +9,12 @@ Sections: "rows" (the table: one record per world-sounds:method), "earlier_runs"
 """
 
 import argparse
+import fcntl
 import json
 import shlex
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from result_files import ABSOLUTE_PATH, write_result
@@ -34,6 +37,17 @@ def load_results() -> dict:
 
 def save_results(results: dict) -> None:
     write_result(OUTPUT, results)
+
+
+@contextmanager
+def updated_results() -> Iterator[dict]:
+    """The file as it is now, read under an exclusive lock and written back when the block ends: what another
+    run (another seed, another row) saved meanwhile is kept, and no two runs write at once."""
+    with OUTPUT.with_name(f".{OUTPUT.name}.lock").open("w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        results = load_results()
+        yield results
+        save_results(results)
 
 
 def record_ids(results: dict) -> list[str]:
@@ -230,17 +244,18 @@ def apply_edit(results: dict, args: argparse.Namespace) -> str:
 def records_command(arguments: list[str], print_table) -> None:
     """`bench/reproduce.py records …`; `print_table` prints (and stores) the table from the records."""
     args = parse_records_arguments(arguments)
-    results = load_results()
     if args.verb == "list":
+        results = load_results()
         for record_id in record_ids(results):
             print(f"{record_id}\t{describe_record(find(results, record_id)[2])}")
         return
-    if args.verb != "table":
-        try:
-            what = apply_edit(results, args)
-        except RecordError as error:
-            raise SystemExit(f"records {args.verb}: {error}") from None
-        log_edit(results, what, args.why, arguments)
-        print(what)
-    print_table(results)
+    with updated_results() as results:
+        if args.verb != "table":
+            try:
+                what = apply_edit(results, args)
+            except RecordError as error:
+                raise SystemExit(f"records {args.verb}: {error}") from None
+            log_edit(results, what, args.why, arguments)
+            print(what)
+        print_table(results)
     save_results(results)

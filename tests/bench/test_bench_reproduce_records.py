@@ -3,7 +3,11 @@
 lists every seed."""
 
 import json
+import multiprocessing
 import shlex
+import time
+from multiprocessing.synchronize import Event
+from pathlib import Path
 
 import pytest
 import reproduce_records
@@ -140,3 +144,37 @@ def test_a_run_stopped_by_a_signal_is_stored_as_interrupted_with_how_to_take_it_
     assert store["kuka-wordset:var"]["config"]["seed"] == 2, "its records list shows the seed"
     assert "--resume" in store["kuka-wordset:var"]["note"]
     assert store["done"] == {"status": "complete"}
+
+
+def save_progress_many_times(output: str, entry: str, start: Event) -> None:
+    """One run of a seed saving its progress, as bench/reproduce.py does every 10 updates; each save takes a
+    moment between reading the file and writing it back, so the two runs' saves overlap."""
+    reproduce_records.OUTPUT = Path(output)
+    start.wait()
+    for step in range(20):
+        with reproduce_records.updated_results() as results:
+            time.sleep(0.005)
+            results.setdefault("experiments", {})[entry] = {"progress": {"global_step": step}}
+
+
+def test_two_seeds_running_at_once_each_keep_their_record(stored, tmp_path):
+    """Runs of several seeds at once each read the file afresh under a lock, so neither writes the other's
+    record away (each used to hold the whole file in memory and write it back)."""
+    output = str(tmp_path / "reproduce.json")
+    context = multiprocessing.get_context("spawn")
+    start = context.Event()
+    seeds = [
+        context.Process(target=save_progress_many_times, args=(output, f"seed{k}", start)) for k in (1, 2)
+    ]
+    for seed in seeds:
+        seed.start()
+    start.set()
+    for seed in seeds:
+        seed.join(timeout=60)
+    assert [seed.exitcode for seed in seeds] == [0, 0]
+    results = json.loads(Path(output).read_text())
+    assert results["experiments"] == {
+        "seed1": {"progress": {"global_step": 19}},
+        "seed2": {"progress": {"global_step": 19}},
+    }
+    assert results["rows"]["kuka-wordset:var"]["tag"] == "seed2"  # what was there before is kept
