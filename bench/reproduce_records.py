@@ -258,4 +258,3 @@ def records_command(arguments: list[str], print_table) -> None:
             log_edit(results, what, args.why, arguments)
             print(what)
         print_table(results)
-    save_results(results)
