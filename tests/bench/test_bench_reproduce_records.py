@@ -178,3 +178,47 @@ def test_two_seeds_running_at_once_each_keep_their_record(stored, tmp_path):
         "seed2": {"progress": {"global_step": 19}},
     }
     assert results["rows"]["kuka-wordset:var"]["tag"] == "seed2"  # what was there before is kept
+
+
+def test_one_var_recipe_built_in_two_data_directories_is_one_var():
+    in_the_repository = run_record("made-here", 2, 0.8, var="data/bench/var/a/final.pt")
+    elsewhere = run_record("made-elsewhere", 3, 0.6, var="$VARBOT_DATA_DIR/bench/var/a/final.pt")
+    another = run_record("another-var", 1, 0.1, var="$VARBOT_DATA_DIR/bench/var/b/final.pt")
+    results = {"experiments": {"a": in_the_repository}, "earlier_runs": [elsewhere, another]}
+    [line] = table_lines(results)
+    assert [s["tag"] for s in line["seeds"]] == ["made-here", "made-elsewhere"]
+
+
+def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_recipe_unchanged():
+    before = run_record("before", 2, 0.8)
+    after = run_record("after", 3, 0.6)
+    after["config"] |= {"replay_envs": 0, "replay_room": "randomised", "room": "training"}
+    elsewhere = run_record("unseen-room", 1, 0.1)
+    elsewhere["config"] |= {"room": "unseen_room"}
+    with_replay = run_record("replay", 4, 0.1)
+    with_replay["config"] |= {"replay_envs": 2, "replay_room": "randomised"}
+    results = {"experiments": {"before": before}, "earlier_runs": [after, elsewhere, with_replay]}
+    [line] = table_lines(results)
+    assert [s["tag"] for s in line["seeds"]] == ["before", "after"]
+
+
+def test_the_mean_takes_the_complete_seeds_and_lists_a_partial_one_beside_them():
+    partial = {**run_record("cut-short", 1, 0.5), "status": "partial"}
+    again = run_record("again", 1, 0.7)
+    other = run_record("other-seed", 2, 0.9)
+    stopped = {**run_record("stopped", 3, 0.1), "status": "partial"}
+    results = {"experiments": {"a": other, "b": stopped}, "earlier_runs": [partial, again]}
+    [line] = table_lines(results)
+    assert [(s["tag"], s["in_mean"]) for s in line["seeds"]] == [
+        ("again", True),
+        ("other-seed", True),
+        ("stopped", False),
+    ]
+    assert line["success_mean"]["unheard-easy"] == pytest.approx(0.8)
+    assert line["seeds_in_mean"] == 2
+
+
+def test_a_recipe_of_only_partial_seeds_is_their_mean_each_marked_partial():
+    results = {"experiments": {"a": {**run_record("a", 1, 0.4), "status": "partial"}}}
+    [line] = table_lines(results)
+    assert line["seeds"][0]["in_mean"] and line["success_mean"]["unheard-easy"] == pytest.approx(0.4)
