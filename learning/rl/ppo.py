@@ -69,6 +69,8 @@ class PPOConfig:
     goal_split: str = "train"
     reward: RewardKind = "var"
     current_sound: bool = False  # add f_S(S_t)·f_S(S_goal), S_t = a clip of what is heard now (or silence)
+    # subtract the view's best match with another command (IntrinsicRewardAgainstOtherCommands); experimental
+    reward_against_others: bool = False
     goal_encoder: Literal["var", "learned"] = "var"  # "learned": the baselines' MFCC encoder, no VAR input
     aux_loss_coef: float = 0.0  # RSI-style auxiliary classification losses on ground-truth labels
     init_encoders: str | None = None  # one-hot pre-trained image + goal encoders (learning.rl.pretrain)
@@ -140,6 +142,11 @@ class PPOConfig:
             raise ValueError("the intrinsic reward needs the VAR's goal embedding: use goal_encoder='var'")
         if self.current_sound and self.reward != "var":
             raise ValueError("--current-sound adds to the intrinsic reward; it needs reward='var'")
+        if self.reward_against_others and (self.reward != "var" or self.current_sound):
+            raise ValueError(
+                "the reward against other commands changes the plain intrinsic reward: use reward='var' "
+                "without the current sound"
+            )
         if not 0.0 <= self.hard_target_share <= 1.0:
             raise ValueError(f"hard_target_share must be in [0, 1], got {self.hard_target_share}")
         if self.target_intents is not None and not self.target_intents:
@@ -263,7 +270,9 @@ class PPOTrainer:
         # of threads differ in the last bits, and a resumed run would then not repeat the original one exactly
         if self.var is not None and self.goals.embeddings is None:
             self.goals.embed(self.var)
-        self.reward = make_reward(c.reward, self.goals, self.var, self.current_sounds, self.rng)
+        self.reward = make_reward(
+            c.reward, self.goals, self.var, self.current_sounds, self.rng, c.reward_against_others
+        )
         self.state_dim, self.num_intents = self.envs.state_dim, self.envs.num_intents
         unknown = sorted(set(c.target_intents or []) - set(range(self.num_intents)))
         if unknown:

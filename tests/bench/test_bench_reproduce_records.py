@@ -192,12 +192,22 @@ def test_one_var_recipe_built_in_two_data_directories_is_one_var():
 def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_recipe_unchanged():
     before = run_record("before", 2, 0.8)
     after = run_record("after", 3, 0.6)
-    after["config"] |= {"replay_envs": 0, "replay_room": "randomised", "room": "training"}
+    after["config"] |= {
+        "replay_envs": 0,
+        "replay_room": "randomised",
+        "room": "training",
+        "reward_against_others": False,
+    }
     elsewhere = run_record("unseen-room", 1, 0.1)
     elsewhere["config"] |= {"room": "unseen_room"}
     with_replay = run_record("replay", 4, 0.1)
     with_replay["config"] |= {"replay_envs": 2, "replay_room": "randomised"}
-    results = {"experiments": {"before": before}, "earlier_runs": [after, elsewhere, with_replay]}
+    against_others = run_record("against-others", 5, 0.9)
+    against_others["config"] |= {"reward_against_others": True}
+    results = {
+        "experiments": {"before": before},
+        "earlier_runs": [after, elsewhere, with_replay, against_others],
+    }
     [line] = table_lines(results)
     assert [s["tag"] for s in line["seeds"]] == ["before", "after"]
 

@@ -11,6 +11,7 @@ from learning.rl.rewards import (
     ClipBank,
     CurrentSound,
     IntrinsicReward,
+    IntrinsicRewardAgainstOtherCommands,
     IntrinsicRewardWithCurrentSound,
     ShapedReward,
     SparseReward,
@@ -127,6 +128,46 @@ def test_the_current_sound_strategy_adds_what_is_heard_now_against_the_goal() ->
     assert reward(outcome()).tolist() == pytest.approx([1.0 + 0.6, 0.6 + 0.8, 0.48 + 0.6])
 
 
+# the geometry that trapped policies: command 1 sits beside command 0, "nothing" a little away from both
+THREE_COMMANDS = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], unit(0.0, -0.6, 0.8), [0.0, 0.0, 1.0]]
+
+
+def test_against_other_commands_a_neighbouring_block_pays_less_than_no_block() -> None:
+    goals = embedded_bank(THREE_COMMANDS, [0, 1, 2, 2])  # command 2 has two clips
+    plain, against = IntrinsicReward(goals), IntrinsicRewardAgainstOtherCommands(goals)
+    at_goal, at_neighbour, at_nothing = [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], unit(-0.3, 0.0, -1.0)
+    step = outcome(
+        image_embedding=torch.tensor([at_goal, at_neighbour, at_nothing]), goal_clips=np.array([0] * 3)
+    )
+    plain_pays, against_pays = plain(step), against(step)
+    assert plain_pays[1] > plain_pays[2]  # the trap: the neighbour beats no block
+    assert against_pays[1] < against_pays[2] < against_pays[0]
+    # command 2's prototype: the unit mean of (0,-.6,.8) and (0,0,1); at the neighbour: 0 - max(1, ·) = -1
+    prototype_2 = np.array(unit(0.0, -0.6 + 0.0, 0.8 + 1.0))
+    nothing = np.array(unit(-0.3, 0.0, -1.0))
+    assert against_pays.tolist() == pytest.approx(
+        [1.0 - 0.0, 0.0 - 1.0, nothing[0] - max(nothing[1], float(nothing @ prototype_2))], abs=1e-6
+    )
+
+
+def test_against_other_commands_each_clip_is_compared_with_the_commands_other_than_its_own() -> None:
+    goals = embedded_bank(THREE_COMMANDS, [0, 1, 2, 2])
+    view = torch.tensor([[0.0, 0.0, 1.0]] * 2)
+    pays = IntrinsicRewardAgainstOtherCommands(goals)(
+        outcome(image_embedding=view, goal_clips=np.array([3, 0]))
+    )
+    prototype_2 = np.array(unit(0.0, -0.6, 1.8))
+    # goal clip 3 (command 2): 1 - max(0, 0); goal clip 0 (command 0): 0 - max(0, (0,0,1)·p_2)
+    assert pays.tolist() == pytest.approx([1.0, -prototype_2[2]], abs=1e-6)
+
+
+def test_the_reward_against_other_commands_needs_two_commands() -> None:
+    with pytest.raises(ValueError, match="at least two commands"):
+        IntrinsicRewardAgainstOtherCommands(embedded_bank([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [0, 0]))
+    with pytest.raises(ValueError, match="at least two commands"):
+        IntrinsicRewardAgainstOtherCommands(embedded_bank([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [-1, -1]))
+
+
 def test_the_extrinsic_strategies_read_the_simulator_and_count_its_queries() -> None:
     assert SparseReward()(outcome()).tolist() == [0.0, 0.0, 1.0]
     # 2 cm closer = one step; 3 cm further = -1.5 steps; at the target = +1
@@ -142,6 +183,8 @@ def test_a_runs_settings_choose_its_reward() -> None:
     with_sound = make_reward("var", goals, var, heard_clips, np.random.default_rng(0))
     assert type(with_sound) is IntrinsicRewardWithCurrentSound
     assert heard_clips.embeddings is not None  # the heard clips are embedded once, by the run's VAR
+    against = make_reward("var", goals, against_others=True)
+    assert type(against) is IntrinsicRewardAgainstOtherCommands
     assert type(make_reward("sparse", goals)) is SparseReward
     assert type(make_reward("shaped", goals)) is ShapedReward
 
