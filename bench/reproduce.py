@@ -15,8 +15,8 @@ as the paper) gives a share S of the episodes to targets whose recent mean retur
 intrinsic for VAR) is furthest below the best target's. --target-intents 0 trains on target 0 only: the
 diagnostic that showed "zero" alone is learnable; such runs go under "diagnostics", not into the table.
 --experiment records a run under "experiments", beside its row, so trying a PPO variant (--ent-coef,
---goal-match, --reward-against-others) never replaces the row's result; its curve still joins the row's
-figure.
+--goal-match, --reward-against-others, --reward-temperature) never replaces the row's result; its curve
+still joins the row's figure.
 
 `bench/results/reproduce.json` keeps one record per row: status (complete / partial), env steps, wall time,
 steps/s, labels used (counted as the paper does), success per unheard tier and per intent, where each
@@ -114,6 +114,12 @@ def parse_arguments() -> argparse.Namespace:
         const=True,
         default=None,
         help="the VAR reward minus the view's best match with another command (experimental)",
+    )
+    parser.add_argument(
+        "--reward-temperature",
+        type=float,
+        default=None,
+        help="pay exp((match - 1)/T) instead of the plain VAR match (experimental)",
     )
     parser.add_argument("--episodes-per-intent", type=int, default=50)
     parser.add_argument(
@@ -356,6 +362,7 @@ def optional_overrides(args: argparse.Namespace) -> dict:
         "ent_coef": args.ent_coef,
         "goal_match": args.goal_match,
         "reward_against_others": args.reward_against_others,
+        "reward_temperature": args.reward_temperature,
     }
     return {name: value for name, value in given.items() if value is not None}
 

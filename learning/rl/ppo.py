@@ -71,6 +71,7 @@ class PPOConfig:
     current_sound: bool = False  # add f_S(S_t)·f_S(S_goal), S_t = a clip of what is heard now (or silence)
     # subtract the view's best match with another command (IntrinsicRewardAgainstOtherCommands); experimental
     reward_against_others: bool = False
+    reward_temperature: float | None = None  # pay exp((match − 1)/T) (SharpenedIntrinsicReward); experimental
     goal_encoder: Literal["var", "learned"] = "var"  # "learned": the baselines' MFCC encoder, no VAR input
     aux_loss_coef: float = 0.0  # RSI-style auxiliary classification losses on ground-truth labels
     init_encoders: str | None = None  # one-hot pre-trained image + goal encoders (learning.rl.pretrain)
@@ -142,11 +143,16 @@ class PPOConfig:
             raise ValueError("the intrinsic reward needs the VAR's goal embedding: use goal_encoder='var'")
         if self.current_sound and self.reward != "var":
             raise ValueError("--current-sound adds to the intrinsic reward; it needs reward='var'")
-        if self.reward_against_others and (self.reward != "var" or self.current_sound):
+        plain_var_changed = self.reward_against_others or self.reward_temperature is not None
+        if plain_var_changed and (self.reward != "var" or self.current_sound):
             raise ValueError(
-                "the reward against other commands changes the plain intrinsic reward: use reward='var' "
-                "without the current sound"
+                "the reward against other commands and the reward temperature change the plain intrinsic "
+                "reward: use reward='var' without the current sound"
             )
+        if self.reward_against_others and self.reward_temperature is not None:
+            raise ValueError("choose the reward against other commands or a reward temperature, not both")
+        if self.reward_temperature is not None and self.reward_temperature <= 0:
+            raise ValueError(f"reward_temperature must be positive, got {self.reward_temperature}")
         if not 0.0 <= self.hard_target_share <= 1.0:
             raise ValueError(f"hard_target_share must be in [0, 1], got {self.hard_target_share}")
         if self.target_intents is not None and not self.target_intents:
@@ -271,7 +277,13 @@ class PPOTrainer:
         if self.var is not None and self.goals.embeddings is None:
             self.goals.embed(self.var)
         self.reward = make_reward(
-            c.reward, self.goals, self.var, self.current_sounds, self.rng, c.reward_against_others
+            c.reward,
+            self.goals,
+            self.var,
+            self.current_sounds,
+            self.rng,
+            c.reward_against_others,
+            c.reward_temperature,
         )
         self.state_dim, self.num_intents = self.envs.state_dim, self.envs.num_intents
         unknown = sorted(set(c.target_intents or []) - set(range(self.num_intents)))

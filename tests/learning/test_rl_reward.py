@@ -14,6 +14,7 @@ from learning.rl.rewards import (
     IntrinsicRewardAgainstOtherCommands,
     IntrinsicRewardWithCurrentSound,
     ShapedReward,
+    SharpenedIntrinsicReward,
     SparseReward,
     StepOutcome,
     intrinsic_reward_from_embeddings,
@@ -168,6 +169,19 @@ def test_the_reward_against_other_commands_needs_two_commands() -> None:
         IntrinsicRewardAgainstOtherCommands(embedded_bank([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [-1, -1]))
 
 
+def test_a_sharpened_reward_keeps_the_order_of_the_matches_and_widens_the_gap_to_the_goals_block() -> None:
+    goals = embedded_bank(THREE_COMMANDS, [0, 1, 2, 2])
+    at_goal, at_neighbour, at_nothing = [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], unit(-0.3, 0.0, -1.0)
+    step = outcome(
+        image_embedding=torch.tensor([at_goal, at_neighbour, at_nothing]), goal_clips=np.array([0] * 3)
+    )
+    plain, sharp = IntrinsicReward(goals)(step), SharpenedIntrinsicReward(goals, temperature=0.25)(step)
+    assert sharp.tolist() == pytest.approx(np.exp((plain - 1.0) / 0.25).tolist())
+    assert sharp[0] > sharp[1] > sharp[2]
+    share = lambda pays: (pays[1] - pays[2]) / (pays[0] - pays[2])  # noqa: E731
+    assert share(sharp) < share(plain) / 5  # the neighbour's pull, against the goal's block
+
+
 def test_the_extrinsic_strategies_read_the_simulator_and_count_its_queries() -> None:
     assert SparseReward()(outcome()).tolist() == [0.0, 0.0, 1.0]
     # 2 cm closer = one step; 3 cm further = -1.5 steps; at the target = +1
@@ -185,6 +199,10 @@ def test_a_runs_settings_choose_its_reward() -> None:
     assert heard_clips.embeddings is not None  # the heard clips are embedded once, by the run's VAR
     against = make_reward("var", goals, against_others=True)
     assert type(against) is IntrinsicRewardAgainstOtherCommands
+    sharpened = make_reward("var", goals, temperature=0.25)
+    assert type(sharpened) is SharpenedIntrinsicReward and sharpened.temperature == 0.25
+    with pytest.raises(ValueError, match="positive"):
+        make_reward("var", goals, temperature=0.0)
     assert type(make_reward("sparse", goals)) is SparseReward
     assert type(make_reward("shaped", goals)) is ShapedReward
 
