@@ -422,10 +422,16 @@ def stop_on_sigterm(signum: int, frame: object) -> None:
     sys.exit(f"stopped by signal {signum}")
 
 
+def curves_and_table(results: dict) -> None:
+    """What every change to the records ends with: the figures redrawn, the table printed and stored."""
+    curves(results)
+    print_table(results)
+
+
 def main() -> None:
     signal.signal(signal.SIGTERM, stop_on_sigterm)
     if sys.argv[1:2] == ["records"]:
-        records_command(sys.argv[2:], print_table)
+        records_command(sys.argv[2:], curves_and_table)
         return
     conditions = Conditions()
     args = parse_arguments()
@@ -449,8 +455,7 @@ def main() -> None:
             store, entry = record_slot(results, key, args)
             store[entry] = record
     with updated_results() as results:
-        curves(results)
-        print_table(results)
+        curves_and_table(results)
     print(describe(conditions.finish()))
 
 

@@ -203,7 +203,9 @@ def parse_records_arguments(arguments: list[str]) -> argparse.Namespace:
     parser = argparse.ArgumentParser(prog="bench/reproduce.py records", description=__doc__.splitlines()[0])
     verbs = parser.add_subparsers(dest="verb", required=True)
     verbs.add_parser("list", help="every record with its id")
-    verbs.add_parser("table", help="print the table again from the stored records (and store it)")
+    verbs.add_parser(
+        "table", help="print the table again from the stored records and redraw the figures (storing both)"
+    )
     edits = {
         "move": "move a record to another section",
         "relabel": "set text fields of a record, or rename its fields",
@@ -242,7 +244,8 @@ def apply_edit(results: dict, args: argparse.Namespace) -> str:
 
 
 def records_command(arguments: list[str], print_table) -> None:
-    """`bench/reproduce.py records …`; `print_table` prints (and stores) the table from the records."""
+    """`bench/reproduce.py records …`; `print_table` prints (and stores) the table from the records, and
+    redraws the figures."""
     args = parse_records_arguments(arguments)
     if args.verb == "list":
         results = load_results()

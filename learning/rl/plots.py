@@ -104,17 +104,25 @@ def success_curve(run_dir: Path, max_points: int = 400) -> SuccessCurve:
 def plot_success_curves(
     curves: dict[str, SuccessCurve], out: Path, title: str = "success rate vs env steps"
 ) -> Path:
-    """One line per run (label → its success curve): recent success rate against env steps."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for label, curve in curves.items():
-        ax.plot([step for step, _ in curve], [success for _, success in curve], label=label)
+    """One line per run (label → its success curve): recent success rate against env steps. Each run has its
+    own colour (up to 20, then dashed), and with more than a few runs the legend sits beside the axes."""
+    many = len(curves) > 6
+    colours = plt.get_cmap("tab20" if len(curves) > 10 else "tab10").colors
+    fig, ax = plt.subplots(figsize=(11, 4.5) if many else (7, 4.5))
+    for i, (label, curve) in enumerate(curves.items()):
+        style = "-" if i < len(colours) else "--"
+        steps, success = [step for step, _ in curve], [rate for _, rate in curve]
+        ax.plot(steps, success, label=label, color=colours[i % len(colours)], linestyle=style)
     ax.set_xlabel("env steps")
     ax.xaxis.set_major_formatter(THOUSANDS)
     ax.set_ylabel("success rate (last 100 training episodes)")
     ax.set_ylim(-0.02, 1.02)
     ax.set_title(title)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    if many:
+        ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    else:
+        ax.legend(fontsize=8)
     fig.tight_layout()
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=100)

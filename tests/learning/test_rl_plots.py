@@ -3,6 +3,7 @@
 import json
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import numpy as np
 from PIL import Image
 
@@ -47,3 +48,15 @@ def test_stored_curves_are_drawn_after_the_run_directories_are_gone(tmp_path: Pa
     pixels = np.asarray(Image.open(out).convert("RGB")).reshape(-1, 3).astype(int)
     for first_colours in ((31, 119, 180), (255, 127, 14)):  # matplotlib's first two line colours: one per run
         assert (np.abs(pixels - first_colours).sum(axis=1) < 10).sum() > 100
+
+
+def test_every_run_of_a_crowded_figure_has_a_colour_of_its_own(tmp_path: Path) -> None:
+    runs = 14  # more than matplotlib's ten default colours, which would repeat
+    curves = {f"run {i}": [[step, i / runs] for step in range(0, 100_000, 1_000)] for i in range(runs)}
+
+    out = plot_success_curves(curves, tmp_path / "crowded.png", title="fourteen runs")
+
+    pixels = np.asarray(Image.open(out).convert("RGB")).reshape(-1, 3).astype(int)
+    for colour in plt.get_cmap("tab20").colors[:runs]:
+        rgb = np.array([round(255 * c) for c in colour])
+        assert (np.abs(pixels - rgb).sum(axis=1) < 10).sum() > 100, f"no line drawn in {rgb}"
