@@ -243,8 +243,8 @@ def apply_edit(results: dict, args: argparse.Namespace) -> str:
     return f"{absolute_path_count(results)} absolute paths written relative to the data dir or the repository"
 
 
-def records_command(arguments: list[str], print_table) -> None:
-    """`bench/reproduce.py records …`; `print_table` prints (and stores) the table from the records, and
+def records_command(arguments: list[str], show_results) -> None:
+    """`bench/reproduce.py records …`; `show_results` prints (and stores) the table from the records, and
     redraws the figures."""
     args = parse_records_arguments(arguments)
     if args.verb == "list":
@@ -260,4 +260,4 @@ def records_command(arguments: list[str], print_table) -> None:
                 raise SystemExit(f"records {args.verb}: {error}") from None
             log_edit(results, what, args.why, arguments)
             print(what)
-        print_table(results)
+        show_results(results)

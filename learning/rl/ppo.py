@@ -151,8 +151,6 @@ class PPOConfig:
             )
         if self.reward_against_others and self.reward_temperature is not None:
             raise ValueError("choose the reward against other commands or a reward temperature, not both")
-        if self.reward_temperature is not None and self.reward_temperature <= 0:
-            raise ValueError(f"reward_temperature must be positive, got {self.reward_temperature}")
         if not 0.0 <= self.hard_target_share <= 1.0:
             raise ValueError(f"hard_target_share must be in [0, 1], got {self.hard_target_share}")
         if self.target_intents is not None and not self.target_intents:

@@ -128,10 +128,15 @@ class IntrinsicRewardAgainstOtherCommands(IntrinsicReward):
                 "the reward against other commands needs goal clips of at least two commands, "
                 f"grouped by command; these clips have {len(commands)}"
             )
+        if (goals.intents < 0).any():
+            raise ValueError(
+                "the reward against other commands needs every goal clip's command; "
+                f"{int((goals.intents < 0).sum())} clips have none (-1)"
+            )
         means = torch.stack([goals.embeddings[torch.from_numpy(goals.clips_of(c))].mean(0) for c in commands])
         self.prototypes = torch.nn.functional.normalize(means, dim=-1)
         row_of = {c: i for i, c in enumerate(commands)}
-        self.command_row = torch.tensor([row_of.get(int(k), -1) for k in goals.intents])
+        self.command_row = torch.tensor([row_of[int(k)] for k in goals.intents])
 
     def __call__(self, step: StepOutcome) -> np.ndarray:
         own = intrinsic_reward_from_embeddings(step.image_embedding, self.goal_embeddings(step))

@@ -162,11 +162,13 @@ def test_against_other_commands_each_clip_is_compared_with_the_commands_other_th
     assert pays.tolist() == pytest.approx([1.0, -prototype_2[2]], abs=1e-6)
 
 
-def test_the_reward_against_other_commands_needs_two_commands() -> None:
+def test_the_reward_against_other_commands_needs_two_commands_and_every_clips_own_command() -> None:
     with pytest.raises(ValueError, match="at least two commands"):
         IntrinsicRewardAgainstOtherCommands(embedded_bank([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [0, 0]))
     with pytest.raises(ValueError, match="at least two commands"):
         IntrinsicRewardAgainstOtherCommands(embedded_bank([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], [-1, -1]))
+    with pytest.raises(ValueError, match="1 clips have none"):  # whose other commands would be unknown
+        IntrinsicRewardAgainstOtherCommands(embedded_bank(THREE_COMMANDS, [0, 1, 2, -1]))
 
 
 def test_a_sharpened_reward_keeps_the_order_of_the_matches_and_widens_the_gap_to_the_goals_block() -> None:
