@@ -1,7 +1,7 @@
 """The conditions a bench measured under, written beside its figures and printed with its table: the machine
-(CPU cores, memory, torch threads, Python and torch versions) and the load average from /proc/loadavg just
-before and just after the measurement. Other people's jobs may share the machine; the load average says how
-much, so two runs are compared only at a similar load.
+(CPU cores, memory, torch threads, Python and torch versions, the GPU if torch sees one) and the load average
+from /proc/loadavg just before and just after the measurement. Other people's jobs may share the machine; the
+load average says how much, so two runs are compared only at a similar load.
 
     conditions = Conditions()        # reads the load average before
     ...                              # the measurement
@@ -38,6 +38,12 @@ def torch_threads() -> int | None:
     return None if torch is None else torch.get_num_threads()
 
 
+def gpu_name() -> str | None:
+    """The GPU torch sees, or None (no GPU, or torch not loaded by the bench)."""
+    torch = sys.modules.get("torch")
+    return torch.cuda.get_device_name() if torch is not None and torch.cuda.is_available() else None
+
+
 def installed_version(package: str) -> str | None:
     try:
         return metadata.version(package)
@@ -52,6 +58,7 @@ def machine() -> dict[str, object]:
         "torch_threads": torch_threads(),
         "python": platform.python_version(),
         "torch": installed_version("torch"),
+        "gpu": gpu_name(),
         "platform": platform.platform(),
     }
 
@@ -74,8 +81,9 @@ def describe(record: dict) -> str:
     found = record["machine"]
     threads = found["torch_threads"]
     load = record["load_average"]
+    gpu = f"GPU {found['gpu']}, " if found.get("gpu") else ""
     return (
-        f"{found['cpu_cores']} CPU cores, {found['memory_gib']} GiB, "
+        f"{found['cpu_cores']} CPU cores, {found['memory_gib']} GiB, {gpu}"
         f"{'no torch' if threads is None else f'{threads} torch threads'}, "
         f"Python {found['python']}, torch {found['torch']}; load average (1 min) "
         f"{load['before']['1_min']:.1f} before, {load['after']['1_min']:.1f} after"

@@ -3,6 +3,7 @@ bench/results/rl_throughput.json.
 
     nice -n 10 .venv/bin/python bench/rl_throughput.py --env-groups 1,2   # Kuka, 96 px, 8 envs, 5 updates
     .venv/bin/python bench/rl_throughput.py --world turtlebot --image-size 64 --updates 3
+    python bench/rl_throughput.py --device cuda --results rl_throughput_gpu.json  # on a GPU machine
 
 1. raw: `AsyncVectorEnv` of 8 worlds stepped with random actions (no learner at all), measured by
 bench/raw_stepping.py exactly as bench/env_speed.py measures it;
@@ -14,6 +15,10 @@ step over the trainer's): on a shared machine the wall figures move with other p
 do not. The JSON holds the reference implementation's speed (REFERENCE:
 its value, unit and source) beside the ratio to it, and the machine and the load average before and after.
 Earlier runs stay in the file under earlier_runs, each with its own load: compare runs only at a similar load.
+--device (auto, cpu, cuda: what VARBOT_DEVICE means to a worker) says where the trainer's VAR and policy run;
+on a machine with enough cores the trainer gives each environment worker a core of its own
+(`learning.device.core_plan`). --results names the file in bench/results, so that another machine's figures
+do not mix with this one's.
 """
 
 import argparse
@@ -45,9 +50,15 @@ def raw_speed(world: str, num_envs: int, image_size: int, steps: int) -> dict[st
 
 
 def trainer_speed(
-    world: str, num_envs: int, image_size: int, updates: int, policy_image_size: int, env_groups: int
+    world: str,
+    num_envs: int,
+    image_size: int,
+    updates: int,
+    policy_image_size: int,
+    env_groups: int,
+    device: str,
 ) -> dict:
-
+    from learning.device import resolve_device
     from learning.rl.frozen_var import LoadedVar
     from learning.rl.ppo import PPOConfig, PPOTrainer
     from learning.rl.rewards import ClipBank
@@ -66,7 +77,9 @@ def trainer_speed(
         checkpoint_every=10_000,
     )
     with tempfile.TemporaryDirectory() as run_dir:
-        trainer = PPOTrainer(config, Path(run_dir), LoadedVar.in_memory(var), goals)
+        trainer = PPOTrainer(
+            config, Path(run_dir), LoadedVar.in_memory(var), goals, device=resolve_device(device)
+        )
         try:
             trainer.start()
             trainer.reset_envs()
@@ -113,6 +126,10 @@ def main() -> None:
     parser.add_argument(
         "--env-groups", default="2", help="comma-separated: 1 = lockstep, 2 = two groups in turn"
     )
+    parser.add_argument(
+        "--device", default="auto", help="where the trainer's VAR and policy run: auto, cpu or cuda"
+    )
+    parser.add_argument("--results", default="rl_throughput.json", help="file name in bench/results to write")
     args = parser.parse_args()
 
     conditions = Conditions()
@@ -121,7 +138,13 @@ def main() -> None:
     trainers = {}
     for groups in [int(g) for g in args.env_groups.split(",")]:
         trainers[groups] = trainer_speed(
-            args.world, args.envs, args.image_size, args.updates, args.policy_image_size, groups
+            args.world,
+            args.envs,
+            args.image_size,
+            args.updates,
+            args.policy_image_size,
+            groups,
+            args.device,
         )
     raw_after = raw_speed(args.world, args.envs, args.image_size, args.raw_steps)
     raw = (raw_before["steps_per_s"] + raw_after["steps_per_s"]) / 2
@@ -139,6 +162,7 @@ def main() -> None:
         "image_size": args.image_size,
         "policy_image_size": args.policy_image_size,
         "num_envs": args.envs,
+        "device": args.device,
         "raw_env_steps_per_s": raw,
         "raw_cpu_ms_per_step": raw_cpu,
         "raw_before_after": [raw_before, raw_after],
@@ -150,7 +174,9 @@ def main() -> None:
         "speedup_over_reference": best["steps_per_s"] / REFERENCE["value"],
         **measured,
     }
-    table = Table(title=f"RL throughput: {args.world}, {args.image_size} px, {args.envs} envs")
+    table = Table(
+        title=f"RL throughput: {args.world}, {args.image_size} px, {args.envs} envs, device {args.device}"
+    )
     table.add_column("measure")
     table.add_column("value", justify="right")
     table.add_row(
@@ -172,7 +198,7 @@ def main() -> None:
     table.add_row(f"best × reference ({reference})", f"{result['speedup_over_reference']:.0f}")
     Console().print(table)
     print(describe(measured))
-    output = RESULTS / "rl_throughput.json"
+    output = RESULTS / args.results
     write_result(output, {**result, "earlier_runs": earlier_runs(output)})
 
 

@@ -28,6 +28,7 @@ def test_finishing_records_the_machine_and_the_load_before_and_after():
     assert machine["memory_gib"] > 0
     assert machine["python"] == platform.python_version()
     assert re.fullmatch(r"\d+\.\d+\.\d+.*", machine["torch"])
+    assert "gpu" in machine  # None here; the GPU's name on a machine where torch sees one
     assert set(record["load_average"]) == {"before", "after"}
     assert set(record["load_average"]["before"]) == {"1_min", "5_min", "15_min"}
 
@@ -41,6 +42,8 @@ def test_the_printed_line_gives_the_load_before_and_after():
     line = describe(record)
     assert "3.2 before, 5.5 after" in line
     assert f"{os.cpu_count()} CPU cores" in line
+    record["machine"]["gpu"] = "NVIDIA H200"
+    assert "GPU NVIDIA H200" in describe(record)
 
 
 def test_every_bench_records_its_conditions_and_prints_them():
