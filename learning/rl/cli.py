@@ -58,6 +58,20 @@ def train(
             "policy.pt); the optimiser starts afresh."
         ),
     ] = None,
+    goal_match: Annotated[
+        bool,
+        typer.Option(
+            "--goal-match",
+            help="The policy also sees f_I(I_t)·f_S(S_goal), the reward it earns now (experimental).",
+        ),
+    ] = False,
+    reward_temperature: Annotated[
+        float | None,
+        typer.Option(
+            help="Pay exp((match − 1)/T) instead of the VAR match, so a block near the goal's pays about "
+            "nothing (experimental; Table I's sharpened recipe uses 0.25)."
+        ),
+    ] = None,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
@@ -91,6 +105,8 @@ def train(
         seed=seed,
         hard_target_share=hard_target_share,
         room=room,
+        goal_match=goal_match,
+        reward_temperature=reward_temperature,
     )
     run_dir = run_dir or data_dir() / "rl" / "runs" / f"{world}-{sounds}-{method}"
     try:

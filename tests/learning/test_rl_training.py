@@ -337,6 +337,21 @@ def test_train_command_refuses_a_curriculum_share_outside_0_to_1(tmp_path: Path)
     assert "hard_target_share must be in [0, 1], got 1.5" in result.output
 
 
+def test_train_command_passes_the_reward_temperature_to_the_run_and_refuses_it_without_the_var_reward(
+    tmp_path: Path,
+) -> None:
+    from typer.testing import CliRunner
+
+    from learning.rl.cli import app
+
+    result = CliRunner().invoke(
+        app, ["train", "--method", "sparse", "--reward-temperature", "0.25", "--run-dir", str(tmp_path)]
+    )
+    assert result.exit_code == 1
+    assert "the reward temperature change the plain intrinsic reward" in result.output
+    assert not (tmp_path / "checkpoint.pt").exists()
+
+
 def test_rsi_baseline_trains_on_the_turtlebot_with_auxiliary_losses_and_counts_its_labels(
     tmp_path: Path, goal_clips: ClipBank
 ) -> None:
