@@ -337,7 +337,7 @@ def test_train_command_refuses_a_curriculum_share_outside_0_to_1(tmp_path: Path)
     assert "hard_target_share must be in [0, 1], got 1.5" in result.output
 
 
-def test_train_command_passes_the_reward_temperature_to_the_run_and_refuses_it_without_the_var_reward(
+def test_train_command_refuses_a_reward_temperature_without_the_var_reward(
     tmp_path: Path,
 ) -> None:
     from typer.testing import CliRunner
