@@ -14,6 +14,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium.vector import AsyncVectorEnv, AutoresetMode
 
+from sim.vector import worker_ignoring_ctrl_c
+
 NO_SOUND = -1  # `heard` when nothing (or several things) is in view
 
 
@@ -133,7 +135,9 @@ def make_vector_env(
         )
         for i in range(num_envs)
     ]
-    return AsyncVectorEnv(fns, context=context, autoreset_mode=AutoresetMode.SAME_STEP)
+    return AsyncVectorEnv(
+        fns, context=context, autoreset_mode=AutoresetMode.SAME_STEP, worker=worker_ignoring_ctrl_c
+    )
 
 
 def world_id(world: str) -> str:

@@ -9,6 +9,7 @@ reads it).
 """
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +28,7 @@ def improve(
     learning_rate: float | None = None,
     resume: bool = False,
     progress: bool = True,
+    on_update: Callable[[dict[str, Any]], bool | None] | None = None,
     **overrides: Any,
 ) -> dict[str, Any]:
     payload = read_policy_checkpoint(policy_checkpoint)
@@ -45,5 +47,12 @@ def improve(
         **overrides,
     )
     return train_run(
-        config, run_dir, var_path, goals=bank, init_policy=policy_checkpoint, resume=resume, progress=progress
+        config,
+        run_dir,
+        var_path,
+        goals=bank,
+        init_policy=policy_checkpoint,
+        resume=resume,
+        progress=progress,
+        on_update=on_update,
     )
