@@ -232,6 +232,7 @@ def run_row(key: str, args: argparse.Namespace) -> dict:
     from learning.rl.ppo import load_policy
     from learning.rl.rewards import REWARD_REVISIONS, corpus_bank
     from learning.rl.run import train_run
+    from learning.rl.stopping import StopRequest
     from learning.sounds import load_corpus
 
     row, method = key.split(":")
@@ -259,6 +260,7 @@ def run_row(key: str, args: argparse.Namespace) -> dict:
     run_dir = data_subdir("bench", "reproduce", "rl", args.tag, f"{row}-{method}")
     conditions = Conditions()
     started = time.monotonic()
+    stop = StopRequest()
 
     def on_update(record: dict) -> bool:
         if record["update"] % 10 == 0:
@@ -269,9 +271,13 @@ def run_row(key: str, args: argparse.Namespace) -> dict:
                     previous = {"row": row, "method": method, "tag": args.tag}
                 # the config: an interrupted run still says which seed and settings it ran with
                 store[entry] = {**previous, "config": asdict(config), "status": "running", "progress": record}
-        return args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
+        out_of_time = args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
+        return out_of_time or stop(record)
 
-    summary = train_run(config, run_dir, loaded_var, resume=args.resume, on_update=on_update)
+    with stop:
+        summary = train_run(config, run_dir, loaded_var, resume=args.resume, on_update=on_update)
+    if stop.signal is not None:  # no evaluation: main() stores the run as interrupted
+        sys.exit(stop.explain(summary, run_dir))
     records = read_metrics(run_dir)
     wall = sum(config.batch_size / r["sps"] for r in records)
     complete = summary["env_steps"] >= config.num_updates * config.batch_size

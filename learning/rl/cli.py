@@ -1,11 +1,9 @@
 """`varbot rl train | improve | eval | plot`. Heavy imports (torch, pybullet) happen inside the commands."""
 
 import json
-import signal
 from dataclasses import replace
 from pathlib import Path
-from types import FrameType, TracebackType
-from typing import Annotated, Any, NoReturn
+from typing import Annotated
 
 import typer
 
@@ -16,53 +14,6 @@ app = typer.Typer(help="Policy learning with the VAR's intrinsic reward (PPO), e
 def _fail(message: str) -> None:
     typer.secho(message, fg=typer.colors.RED, err=True)
     raise typer.Exit(1)
-
-
-class StopRequest:
-    """The first SIGTERM or Ctrl-C asks the run to stop after its current update, which writes a checkpoint
-    (so nothing is lost and `--resume` continues exactly); a second one stops it at once. Passed to the
-    trainer as its `on_update`: True means stop."""
-
-    STOP_SIGNALS = (signal.SIGTERM, signal.SIGINT)
-
-    def __init__(self) -> None:
-        self.signal: int | None = None
-        self._previous: dict[int, Any] = {}
-
-    def __enter__(self) -> "StopRequest":
-        for signum in self.STOP_SIGNALS:
-            self._previous[signum] = signal.signal(signum, self._request)
-        return self
-
-    def __exit__(
-        self, kind: type[BaseException] | None, error: BaseException | None, trace: TracebackType | None
-    ) -> None:
-        for signum, handler in self._previous.items():
-            signal.signal(signum, handler)
-
-    def _request(self, signum: int, frame: FrameType | None) -> None:
-        if self.signal is not None:
-            raise KeyboardInterrupt
-        self.signal = signum
-        typer.secho(
-            f"{signal.Signals(signum).name}: stopping after the current update, with a checkpoint "
-            "(send it again to stop at once, losing the steps since the last checkpoint)",
-            fg=typer.colors.YELLOW,
-            err=True,
-        )
-
-    def __call__(self, record: dict[str, Any]) -> bool:
-        return self.signal is not None
-
-
-def _stopped(signum: int, summary: dict[str, Any], run_dir: Path) -> NoReturn:
-    typer.secho(
-        f"stopped by {signal.Signals(signum).name} at {summary['env_steps']:,} env steps; the checkpoint is "
-        f"{run_dir / 'checkpoint.pt'}: the same command with --resume continues from there",
-        fg=typer.colors.YELLOW,
-        err=True,
-    )
-    raise typer.Exit(128 + signum)  # the shell's convention for a process stopped by a signal
 
 
 @app.command()
@@ -128,6 +79,7 @@ def train(
     from learning.rl.baselines import METHODS, method_config, needs_var
     from learning.rl.frozen_var import load_frozen_var
     from learning.rl.run import train_run
+    from learning.rl.stopping import StopRequest
 
     if method not in METHODS:
         _fail(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
@@ -174,7 +126,8 @@ def train(
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         _fail(str(error))
     if stop.signal is not None:
-        _stopped(stop.signal, summary, run_dir)
+        typer.secho(stop.explain(summary, run_dir), fg=typer.colors.YELLOW, err=True)
+        raise typer.Exit(stop.exit_code)
     typer.echo(json.dumps(summary, indent=2))
     typer.echo(f"run directory: {run_dir}")
 
@@ -220,6 +173,7 @@ def improve(
     """Self-improvement: continue PPO with a fine-tuned VAR and the household's own clips as goals."""
     from core.paths import data_dir
     from learning.rl.improve import improve as run_improve
+    from learning.rl.stopping import StopRequest
 
     run_dir = run_dir or data_dir() / "rl" / "improve" / policy.parent.name
     try:
@@ -230,7 +184,8 @@ def improve(
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         _fail(str(error))
     if stop.signal is not None:
-        _stopped(stop.signal, summary, run_dir)
+        typer.secho(stop.explain(summary, run_dir), fg=typer.colors.YELLOW, err=True)
+        raise typer.Exit(stop.exit_code)
     typer.echo(json.dumps(summary, indent=2))
 
 
