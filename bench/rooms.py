@@ -70,6 +70,9 @@ def evaluate_base(args: argparse.Namespace, save: Callable[[dict], None]) -> dic
         "base": relative_path(base.folder),
         "base_built_at": base.record.get("built_at"),
         "base_recipe": base.record.get("recipe", "training room only (before issue 25)"),
+        # a base whose policy was trained apart from its VAR (`varbot models adopt`) says how
+        "base_policy_recipe": base.record.get("policy_recipe"),
+        "base_policy_command": base.record.get("policy_command"),
         "front_end": front_end_of(base.var_path),
         "sounds": base.record.get("sounds"),
         "episodes_per_intent": args.episodes_per_intent,

@@ -20,6 +20,5 @@ find "$gym/pybullet_data" -mindepth 1 -maxdepth 1 ! -name kuka_iiwa ! -name tabl
 tar czf .dev/pybullet-3.2.7-trimmed.tar.gz -C "$work" pybullet-3.2.7
 python3 -m pip download -q --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
     --platform manylinux_2_17_x86_64 -d .dev/whl gymnasium==1.4.0 farama-notifications==0.0.6
-cp scripts/gpu-bench-run.sh .dev/
 rm -rf "$work"
 du -sh .dev
