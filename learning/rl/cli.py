@@ -72,6 +72,13 @@ def train(
             "nothing (experimental; Table I's sharpened recipe uses 0.25)."
         ),
     ] = None,
+    policy_colour_jitter: Annotated[
+        float,
+        typer.Option(
+            help="Each episode the policy sees its view with the RGB channels shuffled and scaled by gains "
+            "within 1 ± this (0: off; the VAR always sees the real view; experimental, learning.rl.colours)."
+        ),
+    ] = 0.0,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
@@ -108,6 +115,7 @@ def train(
         room=room,
         goal_match=goal_match,
         reward_temperature=reward_temperature,
+        policy_colour_jitter=policy_colour_jitter,
     )
     run_dir = run_dir or data_dir() / "rl" / "runs" / f"{world}-{sounds}-{method}"
     try:

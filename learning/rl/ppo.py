@@ -45,6 +45,7 @@ from learning.rl.checkpoints import (  # the F401 ones: callers reach them throu
     with_legacy_run_options,
     write_run_checkpoint,
 )
+from learning.rl.colours import EpisodeColours
 from learning.rl.curriculum import Curriculum
 from learning.rl.env_groups import EnvGroups, ended_view, env_rooms
 from learning.rl.frozen_var import LoadedVar, VarOnDevice
@@ -83,6 +84,8 @@ class PPOConfig:
     target_intents: list[int] | None = None  # diagnostics: the world asks only for these targets (None: all)
     image_size: int = 96  # rendered size; must equal the VAR's input size
     policy_image_size: int = PolicyConfig.policy_image_size
+    # each episode the policy sees its view in other colours (learning.rl.colours; 0: off); experimental
+    policy_colour_jitter: float = 0.0
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
     max_episode_steps: int | None = None  # None: the world's own T (100)
     # core.rooms.world_room: "training", "randomised" (a room per episode), a preset, or DomainShift fields
@@ -127,6 +130,8 @@ class PPOConfig:
 
     def validate(self) -> None:
         world_room(self.room)  # refuses a room it cannot name, saying which exist
+        if not 0.0 <= self.policy_colour_jitter < 1.0:
+            raise ValueError(f"policy_colour_jitter must be in [0, 1), got {self.policy_colour_jitter}")
         world_room(self.replay_room)
         if not 0 <= self.replay_envs < self.num_envs:
             raise ValueError(
@@ -348,8 +353,11 @@ class PPOTrainer:
         seeds = [int(s) for s in np.random.SeedSequence([c.seed, self.update_index]).generate_state(E)]
         obs, info = self.envs.reset(seeds)
         self.needs_reset = False
+        self.colours = EpisodeColours(E, c.policy_colour_jitter)
+        self.colours.draw(np.arange(E), self.rng)
         with torch.inference_mode():
-            self.next_policy_images = downsample_images(torch.from_numpy(obs["image"]), c.policy_image_size)
+            images = downsample_images(torch.from_numpy(obs["image"]), c.policy_image_size)
+            self.next_policy_images = self.colours.apply(images, slice(None))
             self.next_var = self._encode_images(obs["image"])
         self.next_state = torch.from_numpy(obs["state"]).float()
         self.next_start = torch.ones(E)
@@ -474,6 +482,7 @@ class PPOTrainer:
         cut = np.flatnonzero(truncated & ~terminated) if c.bootstrap_truncated else []
         if len(cut):
             final_images = downsample_images(torch.from_numpy(ended.images[cut]), c.policy_image_size)
+            final_images = self.colours.apply(final_images, cut + group.start)  # the ended episode's colours
             envs = torch.from_numpy(cut + group.start)
             _, final_value, _ = self.policy.step(
                 final_images, reward_embedding[cut], torch.from_numpy(ended.state[cut]),
@@ -486,8 +495,9 @@ class PPOTrainer:
         if len(done_envs):
             next_var[done_envs] = reset_embedding
         self.next_var[group] = next_var
-        images = torch.from_numpy(obs["image"])
-        self.next_policy_images[group] = downsample_images(images, c.policy_image_size)
+        self.colours.draw(done_envs + group.start, self.rng)
+        images = downsample_images(torch.from_numpy(obs["image"]), c.policy_image_size)
+        self.next_policy_images[group] = self.colours.apply(images, group)
         self.next_state[group] = torch.from_numpy(np.asarray(obs["state"], dtype=np.float32))
         self.next_start[group] = torch.from_numpy(done.astype(np.float32))
         self.heard[group] = np.asarray(info["heard"], dtype=np.int64)

@@ -454,3 +454,26 @@ def test_replay_environments_are_spread_over_the_groups_and_never_the_watched_on
     assert env_rooms(8, "own", 2, "base") == ["own"] * 3 + ["base"] + ["own"] * 3 + ["base"]
     assert env_rooms(8, "own", 0, "base") == ["own"] * 8
     assert env_rooms(4, "own", 3, "base")[0] == "own"
+
+
+def test_colour_jitter_changes_only_what_the_policy_sees_and_once_per_episode(
+    tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
+) -> None:
+    plain = make(tiny_config(), tmp_path / "plain", var_checkpoint, goal_clips)
+    jittered = make(tiny_config(policy_colour_jitter=0.3), tmp_path / "jittered", var_checkpoint, goal_clips)
+    try:
+        for trainer in (plain, jittered):
+            trainer.reset_envs()
+        torch.testing.assert_close(jittered.next_var, plain.next_var)  # the VAR sees the real view
+        shown = jittered.colours.apply(plain.next_policy_images, slice(None))
+        assert torch.equal(jittered.next_policy_images, shown)
+        assert not torch.equal(jittered.next_policy_images, plain.next_policy_images)
+        at_reset = jittered.colours.mixes.clone()
+        buf, finished = jittered.collect_rollout()
+        jittered.update(buf)
+    finally:
+        plain.close()
+        jittered.close()
+    assert len(finished) >= jittered.config.num_envs  # every env ended an episode (5 steps) in 12 steps
+    for env in range(jittered.config.num_envs):
+        assert not torch.equal(jittered.colours.mixes[env], at_reset[env])  # so each drew new colours
