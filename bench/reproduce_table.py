@@ -13,7 +13,12 @@ from rich.table import Table
 NOT_RECIPE = {"seed", "torch_threads", "checkpoint_every"}  # settings that do not change what is learned
 SEED_SOURCES = ("rows", "experiments", "earlier_runs")  # where a recipe's other seeds may be stored
 # Settings added after runs were stored, each with the value that trains what a run from before it trained.
-AS_BEFORE = {"replay_envs": 0, "room": "training", "reward_against_others": False}
+AS_BEFORE = {
+    "replay_envs": 0,
+    "room": "training",
+    "reward_against_others": False,
+    "policy_colour_jitter": 0.0,
+}
 DATA_DIR_PREFIXES = ("$VARBOT_DATA_DIR/", "data/")  # a data directory elsewhere, or the default one
 
 

@@ -197,6 +197,7 @@ def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_rec
         "replay_room": "randomised",
         "room": "training",
         "reward_against_others": False,
+        "policy_colour_jitter": 0.0,
     }
     elsewhere = run_record("unseen-room", 1, 0.1)
     elsewhere["config"] |= {"room": "unseen_room"}
@@ -204,9 +205,11 @@ def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_rec
     with_replay["config"] |= {"replay_envs": 2, "replay_room": "randomised"}
     against_others = run_record("against-others", 5, 0.9)
     against_others["config"] |= {"reward_against_others": True}
+    jittered = run_record("colour-jitter", 6, 0.9)
+    jittered["config"] |= {"policy_colour_jitter": 0.3}
     results = {
         "experiments": {"before": before},
-        "earlier_runs": [after, elsewhere, with_replay, against_others],
+        "earlier_runs": [after, elsewhere, with_replay, against_others, jittered],
     }
     [line] = table_lines(results)
     assert [s["tag"] for s in line["seeds"]] == ["before", "after"]
