@@ -263,7 +263,9 @@ def run_row(key: str, args: argparse.Namespace) -> dict:
     stop = StopRequest()
 
     def on_update(record: dict) -> bool:
-        if record["update"] % 10 == 0:
+        out_of_time = args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
+        stopping = out_of_time or stop(record)
+        if record["update"] % 10 == 0 or stopping:  # a stopped run's progress is its checkpoint's
             with updated_results() as results:
                 store, entry = record_slot(results, key, args)
                 previous = store.get(entry, {})
@@ -271,8 +273,7 @@ def run_row(key: str, args: argparse.Namespace) -> dict:
                     previous = {"row": row, "method": method, "tag": args.tag}
                 # the config: an interrupted run still says which seed and settings it ran with
                 store[entry] = {**previous, "config": asdict(config), "status": "running", "progress": record}
-        out_of_time = args.max_minutes is not None and time.monotonic() - started > 60 * args.max_minutes
-        return out_of_time or stop(record)
+        return stopping
 
     with stop:
         summary = train_run(config, run_dir, loaded_var, resume=args.resume, on_update=on_update)
