@@ -3,9 +3,12 @@
 import json
 from dataclasses import replace
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+
+if TYPE_CHECKING:
+    from learning.rl.stopping import StopRequest
 
 app = typer.Typer(help="Policy learning with the VAR's intrinsic reward (PPO), evaluation and baselines.",
                   no_args_is_help=True)  # fmt: skip
@@ -14,6 +17,12 @@ app = typer.Typer(help="Policy learning with the VAR's intrinsic reward (PPO), e
 def _fail(message: str) -> None:
     typer.secho(message, fg=typer.colors.RED, err=True)
     raise typer.Exit(1)
+
+
+def _exit_if_stopped(stop: "StopRequest", summary: dict[str, Any], run_dir: Path) -> None:
+    if stop.signal is not None:
+        typer.secho(stop.explain(summary, run_dir), fg=typer.colors.YELLOW, err=True)
+        raise typer.Exit(stop.exit_code)
 
 
 @app.command()
@@ -133,9 +142,7 @@ def train(
             )
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         _fail(str(error))
-    if stop.signal is not None:
-        typer.secho(stop.explain(summary, run_dir), fg=typer.colors.YELLOW, err=True)
-        raise typer.Exit(stop.exit_code)
+    _exit_if_stopped(stop, summary, run_dir)
     typer.echo(json.dumps(summary, indent=2))
     typer.echo(f"run directory: {run_dir}")
 
@@ -191,9 +198,7 @@ def improve(
             )
     except (ValueError, FileNotFoundError, FileExistsError) as error:
         _fail(str(error))
-    if stop.signal is not None:
-        typer.secho(stop.explain(summary, run_dir), fg=typer.colors.YELLOW, err=True)
-        raise typer.Exit(stop.exit_code)
+    _exit_if_stopped(stop, summary, run_dir)
     typer.echo(json.dumps(summary, indent=2))
 
 

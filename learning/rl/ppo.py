@@ -130,9 +130,9 @@ class PPOConfig:
 
     def validate(self) -> None:
         world_room(self.room)  # refuses a room it cannot name, saying which exist
+        world_room(self.replay_room)
         if not 0.0 <= self.policy_colour_jitter < 1.0:
             raise ValueError(f"policy_colour_jitter must be in [0, 1), got {self.policy_colour_jitter}")
-        world_room(self.replay_room)
         if not 0 <= self.replay_envs < self.num_envs:
             raise ValueError(
                 f"replay_envs ({self.replay_envs}) must leave at least one of the {self.num_envs} "
