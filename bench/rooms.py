@@ -14,6 +14,7 @@ training room and in randomised rooms, interleaved (so both meet the same load),
     nice -n 10 .venv/bin/python bench/rooms.py --tag before [--base worker/base_models/kuka]
         [--episodes-per-intent 50] [--rooms training,unseen_room,lamplit_room]
         [--rooms 'lamplit_room,lamplit_room[camera_jitter_m=0,camera_jitter_deg=0]']  # which knob costs most
+        [--rooms 'unseen_room[floor_texture=none],unseen_room[object_rgb=none]']  # none: the world's own look
     nice -n 10 .venv/bin/python bench/rooms.py --env-speed [--rounds 4]
 """
 
@@ -109,6 +110,22 @@ def table(entry: dict, tag: str) -> Table:
     return view
 
 
+def endings_table(entry: dict, tag: str) -> Table:
+    """Where the episodes of each cell ended: for goal g, how many at each block (0..3) or at none. Right
+    goals sit on the diagonal; a spread row means the goal was not understood, a large `none` that the robot
+    did not arrive."""
+    view = Table(title=f"{tag}: where the episodes ended (rows: goal; columns: block 0..3, none)")
+    view.add_column("room / tier")
+    view.add_column("goal", justify="right")
+    view.add_column("ended at", justify="left")
+    for room, cells in entry["cells"].items():
+        for split, cell in cells.items():
+            for goal, ended in enumerate(cell.get("final_view_by_intent", [])):
+                label = f"{room} / {split}" if goal == 0 else ""
+                view.add_row(escape(label), str(goal), " ".join(f"{count:3d}" for count in ended))
+    return view
+
+
 def _cell(cell: dict | None) -> str:
     return "—" if cell is None else f"{cell['success_rate']:.1%} ({cell['episodes']})"
 
@@ -178,6 +195,7 @@ def main(argv: list[str] | None = None) -> None:
     entry = evaluate_base(args, save)
     console = Console()
     console.print(table(entry, args.tag))
+    console.print(endings_table(entry, args.tag))
     console.print(describe(entry))
 
 

@@ -297,7 +297,7 @@ def world_room(name: str | Mapping[str, Any]) -> "DomainShift | RoomRanges | Non
     """What a world is given for a room name: None for "training" (the world's own look), the training
     `RoomRanges` for "randomised" (a new room every reset), or a preset's room. A mapping of DomainShift
     fields (`room_setting`: a household robot's own room) is that room. `ROOM[knob=value,...]` is the
-    training room or a preset with some numeric knobs changed (benches: which knob makes a room hard)."""
+    training room or a preset with some knobs changed (benches: which knob makes a room hard)."""
     if isinstance(name, Mapping):
         return room_of({"domain": name})
     if name.endswith("]") and "[" in name:
@@ -311,27 +311,35 @@ def world_room(name: str | Mapping[str, Any]) -> "DomainShift | RoomRanges | Non
     raise ValueError(f"unknown room {name!r}: choose one of {', '.join(ROOM_NAMES)}")
 
 
-_NUMERIC_KNOBS = ("camera_jitter_m", "camera_jitter_deg", "light_ambient", "light_diffuse")
-
-
 def _room_with_knobs(name: str) -> DomainShift:
-    """`lamplit_room[camera_jitter_m=0,camera_jitter_deg=0]`: the room with those numeric knobs set."""
+    """`lamplit_room[camera_jitter_m=0,floor_texture=none,object_rgb=1/0/0]`: the room with those knobs set.
+    A value is a number, a texture name, three numbers joined by `/` (a colour or a light direction), or
+    `none` (the world's own colour, a plain surface, the default light)."""
     base_name, knobs = name[:-1].split("[", 1)
     base = world_room(base_name)
     if isinstance(base, RoomRanges):
         raise ValueError(f"{name!r}: knobs change one room, not the ranges of {RANDOMISED_ROOMS!r}")
     fields = dataclasses.asdict(base or DomainShift())
     for knob in filter(None, knobs.split(",")):
-        field_name, _, value = knob.partition("=")
-        if field_name not in _NUMERIC_KNOBS:
-            known = ", ".join(_NUMERIC_KNOBS)
-            raise ValueError(f"{name!r}: {field_name!r} is not a numeric knob; these are: {known}")
-        try:
-            number = float(value)
-        except ValueError:
-            raise ValueError(f"{name!r}: {field_name} takes a number, not {value!r}") from None
-        fields[field_name] = _checked(field_name, number)  # the rule a robot's settings.domain follows
+        field_name, _, text = knob.partition("=")
+        if field_name not in _FIELDS:
+            raise ValueError(f"{name!r}: {field_name!r} is not a knob; these are: {', '.join(_FIELDS)}")
+        fields[field_name] = _checked(field_name, _knob_value(name, field_name, text))  # a robot's rule
     return DomainShift(**fields)
+
+
+def _knob_value(name: str, field_name: str, text: str) -> Any:
+    if text == "none":
+        return None
+    if field_name.endswith("_texture"):
+        return text
+    try:
+        numbers = [float(part) for part in text.split("/")]
+    except ValueError:
+        raise ValueError(f"{name!r}: {field_name} takes a number, not {text!r}") from None
+    if field_name.endswith(("_rgb", "_direction")):
+        return numbers
+    return numbers[0] if len(numbers) == 1 else text  # `_checked` says a number was wanted
 
 
 def room_setting(room: DomainShift | None) -> str | dict[str, Any]:

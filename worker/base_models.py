@@ -330,6 +330,8 @@ def evaluate_in_rooms(
                 "success_rate": result.success_rate,
                 "success_by_intent": result.success_by_intent,
                 "episodes": len(result.episodes),
+                # [intent][intent whose object the robot ended at, or the last column: none]
+                "final_view_by_intent": result.final_view_by_intent,
                 "wall_s": round(time.perf_counter() - tick, 1),
             }
             evaluations.setdefault(room, {})[split] = cell

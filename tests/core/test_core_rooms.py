@@ -133,11 +133,23 @@ def test_a_room_name_can_change_a_presets_numeric_knobs_to_find_which_one_makes_
     assert world_room("training[light_ambient=0.4]") == DomainShift(light_ambient=0.4)
 
 
+def test_a_room_name_can_change_a_presets_colours_textures_and_light_or_set_them_to_the_worlds_own() -> None:
+    plain = world_room("unseen_room[floor_texture=none,object_rgb=none]")
+    assert plain == dataclasses.replace(DomainShift.unseen_room(), floor_texture=None, object_rgb=None)
+    assert world_room("training[object_texture=checker,floor_rgb=0.2/0.3/0.9]") == DomainShift(
+        object_texture="checker", floor_rgb=(0.2, 0.3, 0.9)
+    )
+    assert world_room("lamplit_room[light_direction=0/0/1]").light_direction == (0.0, 0.0, 1.0)
+
+
 @pytest.mark.parametrize(
     ("name", "says"),
     [
         ("randomised[camera_jitter_m=0]", "knobs change one room"),
-        ("lamplit_room[object_rgb=1]", "not a numeric knob; these are: camera_jitter_m"),
+        ("lamplit_room[shine=1]", "'shine' is not a knob; these are: object_rgb, floor_rgb"),
+        ("lamplit_room[object_rgb=1]", "a list of three numbers, not [1.0]"),
+        ("lamplit_room[object_rgb=red]", "object_rgb takes a number, not 'red'"),
+        ("lamplit_room[floor_texture=tiles]", "is one of checker, noise (or null for plain), not 'tiles'"),
         ("lamplit_room[camera_jitter_m=far]", "takes a number, not 'far'"),
         ("lamplit_room[camera_jitter_m=-1]", "at least 0"),
         ("attic[camera_jitter_m=0]", "unknown room 'attic'"),

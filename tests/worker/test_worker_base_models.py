@@ -85,6 +85,10 @@ def test_a_base_build_over_randomised_rooms_resumes_from_its_checkpoints(tmp_pat
     assert json.loads((_work(recipe) / "policy" / "config.json").read_text())["room"] == "randomised"
     assert set(again["evaluation"]) == {"training", "unseen_room"}
     assert set(again["evaluation"]["unseen_room"]) >= {"unheard-easy", "unheard-real-voices"}
+    for cell in (cell for cells in again["evaluation"].values() for cell in cells.values()):
+        ended = cell["final_view_by_intent"]
+        assert [len(row) for row in ended] == [5] * 4, "each goal: ended at block 0..3 or at none"
+        assert sum(map(sum, ended)) == cell["episodes"], "every episode ended somewhere"
     record = BaseModel("kuka", tmp_path / "models" / "kuka").record
     assert record["front_end"] == "mfcc" and record["timings"]["total_s"] > 0
 
