@@ -88,13 +88,6 @@ def train(
             "within 1 ± this (0: off; the VAR always sees the real view; experimental, learning.rl.colours)."
         ),
     ] = 0.0,
-    policy_state_offset: Annotated[
-        float,
-        typer.Option(
-            help="Each episode the policy is told its position off by up to this many metres in x and y, so "
-            "it must find the gripper in its view (0: off; experimental, learning.rl.state_offsets)."
-        ),
-    ] = 0.0,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
@@ -132,7 +125,6 @@ def train(
         goal_match=goal_match,
         reward_temperature=reward_temperature,
         policy_colour_jitter=policy_colour_jitter,
-        policy_state_offset_m=policy_state_offset,
     )
     run_dir = run_dir or data_dir() / "rl" / "runs" / f"{world}-{sounds}-{method}"
     try:

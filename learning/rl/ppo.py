@@ -54,7 +54,6 @@ from learning.rl.normalize import ReturnNormalizer
 from learning.rl.policy import GoalFusion, Policy, PolicyConfig, downsample_images
 from learning.rl.pretrain import load_encoders_into
 from learning.rl.rewards import ClipBank, RewardKind, StepOutcome, make_reward
-from learning.rl.state_offsets import EpisodeStateOffsets
 from learning.rl.stats import EpisodeStats, EpisodeTracker, PeakMemory, Timings, mean_or_nan
 from learning.rl.watch import (
     EnvZeroWatch,
@@ -87,9 +86,6 @@ class PPOConfig:
     policy_image_size: int = PolicyConfig.policy_image_size
     # each episode the policy sees its view in other colours (learning.rl.colours; 0: off); experimental
     policy_colour_jitter: float = 0.0
-    # each episode the policy is told its position off by up to this in x and y (learning.rl.state_offsets;
-    # 0: off); experimental
-    policy_state_offset_m: float = 0.0
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
     max_episode_steps: int | None = None  # None: the world's own T (100)
     # core.rooms.world_room: "training", "randomised" (a room per episode), a preset, or DomainShift fields
@@ -137,10 +133,6 @@ class PPOConfig:
         world_room(self.replay_room)
         if not 0.0 <= self.policy_colour_jitter < 1.0:
             raise ValueError(f"policy_colour_jitter must be in [0, 1), got {self.policy_colour_jitter}")
-        if not 0.0 <= self.policy_state_offset_m <= 1.0:
-            raise ValueError(
-                f"policy_state_offset_m must be in [0, 1] metres, got {self.policy_state_offset_m}"
-            )
         if not 0 <= self.replay_envs < self.num_envs:
             raise ValueError(
                 f"replay_envs ({self.replay_envs}) must leave at least one of the {self.num_envs} "
@@ -363,13 +355,11 @@ class PPOTrainer:
         self.needs_reset = False
         self.colours = EpisodeColours(E, c.policy_colour_jitter)
         self.colours.draw(np.arange(E), self.rng)
-        self.state_offsets = EpisodeStateOffsets(E, self.state_dim, c.policy_state_offset_m)
-        self.state_offsets.draw(np.arange(E), self.rng)
         with torch.inference_mode():
             images = downsample_images(torch.from_numpy(obs["image"]), c.policy_image_size)
             self.next_policy_images = self.colours.apply(images, slice(None))
             self.next_var = self._encode_images(obs["image"])
-        self.next_state = self.state_offsets.apply(torch.from_numpy(obs["state"]).float(), slice(None))
+        self.next_state = torch.from_numpy(obs["state"]).float()
         self.next_start = torch.ones(E)
         self.intent = info["intent"].astype(np.int64)
         self.heard = info["heard"].astype(np.int64)
@@ -494,11 +484,8 @@ class PPOTrainer:
             final_images = downsample_images(torch.from_numpy(ended.images[cut]), c.policy_image_size)
             final_images = self.colours.apply(final_images, cut + group.start)  # the ended episode's colours
             envs = torch.from_numpy(cut + group.start)
-            final_states = self.state_offsets.apply(
-                torch.from_numpy(ended.state[cut]).float(), cut + group.start
-            )
             _, final_value, _ = self.policy.step(
-                final_images, reward_embedding[cut], final_states,
+                final_images, reward_embedding[cut], torch.from_numpy(ended.state[cut]),
                 self.episode_goals.features[envs], self.hidden[envs], torch.zeros(len(cut)),
             )  # fmt: skip
             reward[cut] += c.gamma * final_value
@@ -509,11 +496,9 @@ class PPOTrainer:
             next_var[done_envs] = reset_embedding
         self.next_var[group] = next_var
         self.colours.draw(done_envs + group.start, self.rng)
-        self.state_offsets.draw(done_envs + group.start, self.rng)
         images = downsample_images(torch.from_numpy(obs["image"]), c.policy_image_size)
         self.next_policy_images[group] = self.colours.apply(images, group)
-        states = torch.from_numpy(np.asarray(obs["state"], dtype=np.float32))
-        self.next_state[group] = self.state_offsets.apply(states, group)
+        self.next_state[group] = torch.from_numpy(np.asarray(obs["state"], dtype=np.float32))
         self.next_start[group] = torch.from_numpy(done.astype(np.float32))
         self.heard[group] = np.asarray(info["heard"], dtype=np.int64)
         self.intent[group] = np.asarray(info["intent"], dtype=np.int64)

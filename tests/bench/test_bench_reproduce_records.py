@@ -198,7 +198,6 @@ def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_rec
         "room": "training",
         "reward_against_others": False,
         "policy_colour_jitter": 0.0,
-        "policy_state_offset_m": 0.0,
     }
     elsewhere = run_record("unseen-room", 1, 0.1)
     elsewhere["config"] |= {"room": "unseen_room"}
@@ -208,11 +207,9 @@ def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_rec
     against_others["config"] |= {"reward_against_others": True}
     jittered = run_record("colour-jitter", 6, 0.9)
     jittered["config"] |= {"policy_colour_jitter": 0.3}
-    offset = run_record("state-offset", 7, 0.9)
-    offset["config"] |= {"policy_state_offset_m": 0.05}
     results = {
         "experiments": {"before": before},
-        "earlier_runs": [after, elsewhere, with_replay, against_others, jittered, offset],
+        "earlier_runs": [after, elsewhere, with_replay, against_others, jittered],
     }
     [line] = table_lines(results)
     assert [s["tag"] for s in line["seeds"]] == ["before", "after"]

@@ -477,26 +477,3 @@ def test_colour_jitter_changes_only_what_the_policy_sees_and_once_per_episode(
     assert len(finished) >= jittered.config.num_envs  # every env ended an episode (5 steps) in 12 steps
     for env in range(jittered.config.num_envs):
         assert not torch.equal(jittered.colours.mixes[env], at_reset[env])  # so each drew new colours
-
-
-def test_a_state_offset_changes_only_the_position_the_policy_is_told_and_once_per_episode(
-    tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
-) -> None:
-    plain = make(tiny_config(), tmp_path / "plain", var_checkpoint, goal_clips)
-    offset = make(tiny_config(policy_state_offset_m=0.05), tmp_path / "offset", var_checkpoint, goal_clips)
-    try:
-        for trainer in (plain, offset):
-            trainer.reset_envs()
-        torch.testing.assert_close(offset.next_var, plain.next_var)  # the VAR sees the same view
-        assert torch.equal(offset.next_policy_images, plain.next_policy_images)
-        torch.testing.assert_close(offset.next_state - plain.next_state, offset.state_offsets.offsets)
-        assert offset.state_offsets.offsets.abs().max() > 0
-        at_reset = offset.state_offsets.offsets.clone()
-        buf, finished = offset.collect_rollout()
-        offset.update(buf)
-    finally:
-        plain.close()
-        offset.close()
-    assert len(finished) >= offset.config.num_envs  # every env ended an episode (5 steps) in 12 steps
-    for env in range(offset.config.num_envs):
-        assert not torch.equal(offset.state_offsets.offsets[env], at_reset[env])  # so each drew a new offset
