@@ -1,4 +1,9 @@
-"""Procedural grey textures for the domain-shift knobs (PyBullet multiplies them by the shape's colour)."""
+"""Procedural grey textures for the domain-shift knobs (PyBullet multiplies them by the shape's colour).
+
+"checker" is the held-out rooms' (tiles); the training ranges draw from the others: "noise" (mottled),
+"stripes" (planks or a woven cloth) and "speckle" (granite or terrazzo), so a base model meets more than one
+kind of surface pattern before it meets a checkered one.
+"""
 
 import os
 import tempfile
@@ -9,12 +14,12 @@ import numpy as np
 
 from core.paths import data_subdir
 
-TEXTURE_KINDS = ("checker", "noise")
+TEXTURE_KINDS = ("checker", "noise", "stripes", "speckle")  # core.rooms.TEXTURES names the same
 TEXTURE_SIZE_PX = 64
 
 
 def texture_file(kind: str, squares: int = 8) -> Path:
-    """A PNG for `kind` ("checker" or "noise"), written once under the data dir's cache and reused."""
+    """A PNG for `kind` (one of TEXTURE_KINDS), written once under the data dir's cache and reused."""
     if kind not in TEXTURE_KINDS:
         raise ValueError(
             f"unknown texture {kind!r}: choose one of {', '.join(TEXTURE_KINDS)} (or None for plain)"
@@ -27,16 +32,24 @@ def texture_file(kind: str, squares: int = 8) -> Path:
 
 def _texture(kind: str, squares: int) -> np.ndarray:
     size = TEXTURE_SIZE_PX
+    rng = np.random.default_rng(1234)  # fixed: the same texture in every process
+    cells = np.arange(size) * squares // size
     if kind == "checker":
-        cells = np.arange(size) * squares // size
-        light = (cells[:, None] + cells[None, :]) % 2 == 0
-        grey = np.where(light, 255, 110).astype(np.uint8)
+        grey = np.where((cells[:, None] + cells[None, :]) % 2 == 0, 255, 110).astype(np.float32)
+    elif kind == "stripes":
+        bands = rng.uniform(120, 255, size=squares)[cells]  # planks of differing shades along one axis
+        grain = rng.uniform(-20, 20, size=(size, 1)) + rng.uniform(-10, 10, size=(size, size))
+        grey = np.broadcast_to(bands[None, :], (size, size)) + grain.T
+    elif kind == "speckle":
+        grey = np.full((size, size), 205.0, dtype=np.float32)
+        dots = rng.random((size, size))
+        grey[dots < 0.12] = 90.0
+        grey[dots > 0.94] = 255.0
     else:
-        rng = np.random.default_rng(1234)  # fixed: the same "noise" room in every process
         coarse = rng.uniform(90, 255, size=(squares, squares)).astype(np.float32)
         fine = rng.uniform(-25, 25, size=(size, size)).astype(np.float32)
-        grey = np.clip(cv2.resize(coarse, (size, size), interpolation=cv2.INTER_CUBIC) + fine, 0, 255)
-        grey = grey.astype(np.uint8)
+        grey = cv2.resize(coarse, (size, size), interpolation=cv2.INTER_CUBIC) + fine
+    grey = np.clip(grey, 0, 255).astype(np.uint8)
     return np.repeat(grey[:, :, None], 3, axis=2)
 
 

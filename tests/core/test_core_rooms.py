@@ -65,7 +65,7 @@ def test_the_simulator_renders_the_same_room_type() -> None:
         ({"object_rgb": [0, 128, 255]}, "settings.domain.object_rgb holds colours in [0, 1]"),
         (
             {"floor_texture": "marble"},
-            "settings.domain.floor_texture is one of checker, noise (or null for plain)",
+            "settings.domain.floor_texture is one of checker, noise, stripes, speckle (or null for plain)",
         ),
         ({"camera_jitter_deg": -1}, "settings.domain.camera_jitter_deg is a number of at least 0"),
         ({"light_ambient": True}, "settings.domain.light_ambient is a number of at least 0"),
@@ -84,8 +84,8 @@ def test_the_training_ranges_draw_a_different_room_each_time_and_the_same_room_f
     assert rooms[7] == sample_room(ranges, random.Random(7))
     assert len({room.object_rgb for room in rooms}) > 30, "object colours vary"
     assert len({room.floor_rgb for room in rooms}) > 30, "floor colours vary"
-    assert {room.floor_texture for room in rooms} == {None, "noise"}
-    assert {room.object_texture for room in rooms} == {None, "noise"}
+    assert {room.floor_texture for room in rooms} == {None, "noise", "stripes", "speckle"}
+    assert {room.object_texture for room in rooms} == {None, "noise", "stripes", "speckle"}
     assert None in {room.light_direction for room in rooms}, "some rooms keep the world's own light"
     assert all(outside_by(ranges, room) == dict.fromkeys(HELD_OUT_MARGINS, 0.0) for room in rooms)
 
@@ -149,7 +149,7 @@ def test_a_room_name_can_change_a_presets_colours_textures_and_light_or_set_them
         ("lamplit_room[shine=1]", "'shine' is not a knob; these are: object_rgb, floor_rgb"),
         ("lamplit_room[object_rgb=1]", "a list of three numbers, not [1.0]"),
         ("lamplit_room[object_rgb=red]", "object_rgb takes a number, not 'red'"),
-        ("lamplit_room[floor_texture=tiles]", "is one of checker, noise (or null for plain), not 'tiles'"),
+        ("lamplit_room[floor_texture=tiles]", "(or null for plain), not 'tiles'"),
         ("lamplit_room[camera_jitter_m=far]", "takes a number, not 'far'"),
         ("lamplit_room[camera_jitter_m=-1]", "at least 0"),
         ("attic[camera_jitter_m=0]", "unknown room 'attic'"),

@@ -13,7 +13,11 @@ from sim.domain import DomainShift
 from sim.turtlebot_arena import DEFAULT_FLOOR_RGB, OBJECTS
 
 SMALL = 32
-OWN_LOOK_ONLY = RoomRanges(own_look_share=1.0, camera_jitter_m=0.0, camera_jitter_deg=0.0)
+# the worlds' own colours and light; half the surfaces plain, the others mottled or striped
+OWN_LOOK_ONLY = RoomRanges(
+    own_look_share=1.0, camera_jitter_m=0.0, camera_jitter_deg=0.0,
+    object_textures=(None, "noise"), floor_textures=(None, "stripes"),
+)  # fmt: skip
 
 
 def make(world: str, domain: object = None) -> gym.Env:
@@ -87,3 +91,13 @@ def test_a_world_refuses_a_domain_that_is_neither_a_room_nor_ranges() -> None:
             TypeError, match="DomainShift \\(one room\\), RoomRanges \\(a room per episode\\)"
         ):
             make(world, {"floor_rgb": (0, 0, 1)})
+
+
+def test_the_worlds_draw_every_texture_a_room_names_and_the_training_ranges_hold_back_the_checker() -> None:
+    from core.rooms import TEXTURES
+    from sim.textures import TEXTURE_KINDS
+
+    assert TEXTURE_KINDS == TEXTURES
+    ranges = RoomRanges()
+    assert "checker" not in ranges.floor_textures + ranges.object_textures, "the held-out rooms' pattern"
+    assert {"noise", "stripes", "speckle"} <= set(ranges.floor_textures)
