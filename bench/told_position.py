@@ -76,11 +76,11 @@ def measure(args: argparse.Namespace) -> dict:
     base = BaseModel(args.world, args.base) if args.base else find_base(args.world)
     var = load_var(base.var_path)
     torch.set_num_threads(1)  # the env workers come from a fork server, which torch's threads never reach
+    config = PPOConfig.from_dict(load_policy(base.policy_path)[1]["config"])
+    goals = corpus_bank(config.sounds, args.split, front_end=var.front_end).embed(var)
     rows = []
     for dx, dy in offsets(args.offsets):
-        policy, payload = load_policy(base.policy_path)
-        config = PPOConfig.from_dict(payload["config"])
-        goals = corpus_bank(config.sounds, args.split, front_end=var.front_end).embed(var)
+        policy = load_policy(base.policy_path)[0]  # a fresh copy: `told_off_by` wraps its step for good
         told_off_by(policy, dx, dy)
         tick = time.perf_counter()
         result = evaluate(

@@ -18,7 +18,7 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
-TEXTURES = ("checker", "noise", "stripes", "speckle")  # sim.textures draws them
+TEXTURES = ("checker", "noise", "stripes", "speckle")  # sim.textures draws each
 
 _Rgb = tuple[float, float, float]
 
@@ -334,12 +334,11 @@ def _knob_value(name: str, field_name: str, text: str) -> Any:
     if field_name.endswith("_texture"):
         return text
     try:
-        numbers = [float(part) for part in text.split("/")]
+        if field_name.endswith(("_rgb", "_direction")):
+            return [float(part) for part in text.split("/")]
+        return float(text)
     except ValueError:
         raise ValueError(f"{name!r}: {field_name} takes a number, not {text!r}") from None
-    if field_name.endswith(("_rgb", "_direction")):
-        return numbers
-    return numbers[0] if len(numbers) == 1 else text  # `_checked` says a number was wanted
 
 
 def room_setting(room: DomainShift | None) -> str | dict[str, Any]:

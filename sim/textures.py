@@ -13,8 +13,9 @@ import cv2
 import numpy as np
 
 from core.paths import data_subdir
+from core.rooms import TEXTURES
 
-TEXTURE_KINDS = ("checker", "noise", "stripes", "speckle")  # core.rooms.TEXTURES names the same
+TEXTURE_KINDS = TEXTURES  # the names a room may give (core.rooms); each is drawn by `_texture`
 TEXTURE_SIZE_PX = 64
 
 

@@ -95,9 +95,11 @@ def test_a_world_refuses_a_domain_that_is_neither_a_room_nor_ranges() -> None:
 
 def test_the_worlds_draw_every_texture_a_room_names_and_the_training_ranges_hold_back_the_checker() -> None:
     from core.rooms import TEXTURES
-    from sim.textures import TEXTURE_KINDS
+    from sim.textures import TEXTURE_KINDS, texture_file
 
     assert TEXTURE_KINDS == TEXTURES
+    for kind in TEXTURES:
+        assert texture_file(kind).stat().st_size > 0, kind
     ranges = RoomRanges()
     assert "checker" not in ranges.floor_textures + ranges.object_textures, "the held-out rooms' pattern"
     assert {"noise", "stripes", "speckle"} <= set(ranges.floor_textures)
