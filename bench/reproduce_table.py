@@ -18,6 +18,7 @@ AS_BEFORE = {
     "room": "training",
     "reward_against_others": False,
     "policy_colour_jitter": 0.0,
+    "policy_hue_turn": 0.0,
 }
 DATA_DIR_PREFIXES = ("$VARBOT_DATA_DIR/", "data/")  # a data directory elsewhere, or the default one
 

@@ -88,6 +88,13 @@ def train(
             "within 1 ± this (0: off; the VAR always sees the real view; experimental, learning.rl.colours)."
         ),
     ] = 0.0,
+    policy_hue_turn: Annotated[
+        float,
+        typer.Option(
+            help="Each episode also turns the hues of the policy's view about the grey axis by an angle "
+            "within ± this many degrees (0: off; experimental, learning.rl.colours)."
+        ),
+    ] = 0.0,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
@@ -125,6 +132,7 @@ def train(
         goal_match=goal_match,
         reward_temperature=reward_temperature,
         policy_colour_jitter=policy_colour_jitter,
+        policy_hue_turn=policy_hue_turn,
     )
     run_dir = run_dir or data_dir() / "rl" / "runs" / f"{world}-{sounds}-{method}"
     try:

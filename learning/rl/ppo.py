@@ -86,6 +86,7 @@ class PPOConfig:
     policy_image_size: int = PolicyConfig.policy_image_size
     # each episode the policy sees its view in other colours (learning.rl.colours; 0: off); experimental
     policy_colour_jitter: float = 0.0
+    policy_hue_turn: float = 0.0  # and turns its hues by up to ± this many degrees (learning.rl.colours)
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
     max_episode_steps: int | None = None  # None: the world's own T (100)
     # core.rooms.world_room: "training", "randomised" (a room per episode), a preset, or DomainShift fields
@@ -133,6 +134,8 @@ class PPOConfig:
         world_room(self.replay_room)
         if not 0.0 <= self.policy_colour_jitter < 1.0:
             raise ValueError(f"policy_colour_jitter must be in [0, 1), got {self.policy_colour_jitter}")
+        if not 0.0 <= self.policy_hue_turn <= 180.0:
+            raise ValueError(f"policy_hue_turn must be in [0, 180] degrees, got {self.policy_hue_turn}")
         if not 0 <= self.replay_envs < self.num_envs:
             raise ValueError(
                 f"replay_envs ({self.replay_envs}) must leave at least one of the {self.num_envs} "
@@ -353,7 +356,7 @@ class PPOTrainer:
         seeds = [int(s) for s in np.random.SeedSequence([c.seed, self.update_index]).generate_state(E)]
         obs, info = self.envs.reset(seeds)
         self.needs_reset = False
-        self.colours = EpisodeColours(E, c.policy_colour_jitter)
+        self.colours = EpisodeColours(E, c.policy_colour_jitter, c.policy_hue_turn)
         self.colours.draw(np.arange(E), self.rng)
         with torch.inference_mode():
             images = downsample_images(torch.from_numpy(obs["image"]), c.policy_image_size)
