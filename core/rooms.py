@@ -296,10 +296,12 @@ ROOM_NAMES = (TRAINING_ROOM, RANDOMISED_ROOMS, *ROOM_PRESETS)
 def world_room(name: str | Mapping[str, Any]) -> "DomainShift | RoomRanges | None":
     """What a world is given for a room name: None for "training" (the world's own look), the training
     `RoomRanges` for "randomised" (a new room every reset), or a preset's room. A mapping of DomainShift
-    fields (`room_setting`: a household robot's own room) is that room. `ROOM[knob=value,...]` is the
-    training room or a preset with some knobs changed (benches: which knob makes a room hard)."""
+    fields (`room_setting`: a household robot's own room) is that room; `{"ranges": fields}`
+    (`ranges_setting`: the ranges a base model was trained over, as its record keeps them) are those ranges.
+    `ROOM[knob=value,...]` is the training room or a preset with some knobs changed (benches: which knob
+    makes a room hard)."""
     if isinstance(name, Mapping):
-        return room_of({"domain": name})
+        return ranges_from_fields(name["ranges"]) if set(name) == {"ranges"} else room_of({"domain": name})
     if name.endswith("]") and "[" in name:
         return _room_with_knobs(name)
     if name == TRAINING_ROOM:
@@ -341,12 +343,39 @@ def _knob_value(name: str, field_name: str, text: str) -> Any:
         raise ValueError(f"{name!r}: {field_name} takes a number, not {text!r}") from None
 
 
+def ranges_setting(ranges: RoomRanges) -> dict[str, Any]:
+    """Ranges as a config value that `world_room` reads back, in the lists JSON gives back."""
+    return {"ranges": _as_lists(dataclasses.asdict(ranges))}
+
+
+def ranges_from_fields(fields: Mapping[str, Any]) -> RoomRanges:
+    """The `RoomRanges` whose fields (as `dataclasses.asdict` and JSON give them) are `fields`; a field that
+    today's ranges lack is refused (an older record keeps fewer knobs, a newer one may keep more)."""
+    known = {field.name for field in dataclasses.fields(RoomRanges)}
+    unknown = sorted(set(fields) - known)
+    if unknown:
+        raise ValueError(f"unknown room range field(s) {unknown}; known: {', '.join(sorted(known))}")
+    values: dict[str, Any] = {}
+    for name, value in fields.items():
+        if name.endswith("_colour"):
+            hues = tuple(tuple(interval) for interval in value["hues_deg"])
+            values[name] = ColourRange(hues, tuple(value["saturation"]), tuple(value["value"]))
+        else:
+            values[name] = tuple(value) if isinstance(value, list) else value
+    return RoomRanges(**values)
+
+
+def _as_lists(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {key: _as_lists(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_as_lists(item) for item in value]
+    return value
+
+
 def room_setting(room: DomainShift | None) -> str | dict[str, Any]:
     """A room as a config value that `world_room` reads back: "training" for None, else its DomainShift
     fields as JSON gives them back (lists, not tuples), so a config read from disk compares equal to it."""
     if room is None:
         return TRAINING_ROOM
-    return {
-        name: list(value) if isinstance(value, tuple) else value
-        for name, value in dataclasses.asdict(room).items()
-    }
+    return _as_lists(dataclasses.asdict(room))

@@ -17,7 +17,7 @@ import numpy as np
 from worker.household import HouseholdData
 
 if TYPE_CHECKING:
-    from core.rooms import DomainShift
+    from core.rooms import DomainShift, RoomRanges
     from learning.rl.ppo import PPOConfig
 
 
@@ -63,6 +63,7 @@ def improvement_config(
     room: "DomainShift | None",
     robot_env_context: str | None,
     replay_share: float = 0.0,
+    base_ranges: "RoomRanges | None" = None,
 ) -> "PPOConfig":
     """The parent's PPO settings, continued for `steps` in the household's room (or on its real robot) with
     the household's clips as goals, at a third of the base model's learning rate: a parent that is itself a
@@ -70,13 +71,16 @@ def improvement_config(
 
     In simulation `replay_share` of the environments keep practising in the base model's own rooms (for the
     shipped bases, a new room per episode from the training ranges), so that what the base learnt there is
-    not lost to the household's one room."""
-    from core.rooms import room_setting
+    not lost to the household's one room. A base trained over "randomised" rooms replays `base_ranges`, the
+    ranges its record says it was trained over, when given: today's ranges may have grown since."""
+    from core.rooms import RANDOMISED_ROOMS, ranges_setting, room_setting
     from learning.rl.env_groups import IN_PROCESS
     from learning.rl.ppo import PPOConfig
 
     from_base = base.goal_split != "household"
     replay_room = base.room if from_base else base.replay_room
+    if from_base and replay_room == RANDOMISED_ROOMS and base_ranges is not None:
+        replay_room = ranges_setting(base_ranges)
     replay_envs = round(replay_share * base.num_envs)
     if robot_env_context is not None:
         replay_envs = 0
@@ -110,13 +114,14 @@ def improve_policy(
     robot_env_context: str | None = None,
     room: "DomainShift | None" = None,
     replay_share: float = 0.0,
+    base_ranges: "RoomRanges | None" = None,
 ) -> PolicyImproveResult:
     """PPO from `policy_checkpoint`; `on_update(fraction, point)` after each update (True: stop),
     `on_rollout_step` after each step of env 0 (`learning.rl.ppo.RolloutStep`: the live view). With
     `robot_env_context` (`learning.rl.env_groups.in_process_env`: a real robot), PPO runs on that one
     environment in this process instead of simulated worlds; simulated worlds are in `room`, the robot's own
     (None: the training room), but for `replay_share` of the environments, which practise in the base
-    model's rooms (`improvement_config`). The VAR and the policy run where the
+    model's rooms (`improvement_config`, with `base_ranges`). The VAR and the policy run where the
     worker's VARBOT_DEVICE says (`learning.device.resolve_device`)."""
     from backend.settings import get_settings
     from learning.device import resolve_device
@@ -127,7 +132,7 @@ def improve_policy(
     base = PPOConfig.from_dict(read_policy_checkpoint(policy_checkpoint)["config"])
     if base.goal_encoder != "var":
         raise ValueError(f"{policy_checkpoint} was not trained with the VAR; it cannot improve itself")
-    config = improvement_config(base, steps, seed, room, robot_env_context, replay_share)
+    config = improvement_config(base, steps, seed, room, robot_env_context, replay_share, base_ranges)
     updates_total = config.num_updates
 
     def hook(record: dict[str, Any]) -> bool:

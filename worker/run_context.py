@@ -19,7 +19,7 @@ from backend.services import model_versions
 from backend.settings import get_settings
 from core.paths import data_subdir
 from core.robots import world_of_kind
-from core.rooms import DomainShift, room_of
+from core.rooms import DomainShift, RoomRanges, ranges_from_fields, room_of
 from worker.base_models import BaseModelMissing, find_base
 from worker.household import HouseholdData, load_household
 
@@ -65,6 +65,7 @@ class RunContext:
     parent_id: int
     parent_var: Path
     parent_policy: Path | None
+    parent_base_ranges: RoomRanges | None  # the rooms the parent's base model was trained over, if recorded
     data: HouseholdData
     candidate_id: int | None  # an evaluate run's newest candidate version
 
@@ -113,9 +114,16 @@ def prepare_context(
             parent_id=parent.id,
             parent_var=parent_var,
             parent_policy=materialise_optional(blobs, parent.policy_key, folder / "parent" / "policy.pt"),
+            parent_base_ranges=recorded_ranges(parent.metrics),
             data=data,
             candidate_id=_newest_candidate(session, robot.id) if kind == models.RunKind.EVALUATE else None,
         )
+
+
+def recorded_ranges(metrics: dict[str, Any] | None) -> RoomRanges | None:
+    """The training ranges a base model version's record keeps (None for other versions and older records)."""
+    fields = ((metrics or {}).get("base_model") or {}).get("room_ranges")
+    return ranges_from_fields(fields) if fields else None
 
 
 def _feature_kind(world: str) -> str:

@@ -76,6 +76,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
             on_arm,
             context.room,
             float(context.params.get("policy_replay_share", DEFAULT_POLICY_REPLAY_SHARE)),
+            context.parent_base_ranges,
         )
     compact = context.folder / "policy" / "final.pt"
     _compact_policy(result.checkpoint, compact)

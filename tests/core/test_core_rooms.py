@@ -4,6 +4,7 @@ rooms drawn from `RoomRanges`; the held-out presets lie outside every room those
 
 import colorsys
 import dataclasses
+import json
 import math
 import random
 import re
@@ -18,6 +19,8 @@ from core.rooms import (
     RoomRanges,
     held_out_knobs,
     outside_by,
+    ranges_from_fields,
+    ranges_setting,
     room_of,
     sample_room,
     world_room,
@@ -124,6 +127,19 @@ def test_rooms_by_name_are_the_training_room_the_training_ranges_or_a_preset() -
         ValueError, match="unknown room 'attic': choose one of training, randomised, unseen_room"
     ):
         world_room("attic")
+
+
+def test_ranges_a_record_kept_are_read_back_as_those_ranges_even_after_todays_ranges_grew() -> None:
+    older = RoomRanges(object_textures=(None, "noise"), floor_textures=(None, "noise"), own_look_share=0.3)
+    setting = json.loads(json.dumps(ranges_setting(older)))  # as a run's config.json keeps it
+    assert world_room(setting) == older != RoomRanges()
+    assert sample_room(world_room(setting), random.Random(4)) == sample_room(older, random.Random(4))
+
+
+def test_ranges_with_a_knob_todays_ranges_lack_are_refused_saying_which() -> None:
+    fields = {**ranges_setting(RoomRanges())["ranges"], "ceiling_colour": [0, 1]}
+    with pytest.raises(ValueError, match=r"unknown room range field\(s\) \['ceiling_colour'\]"):
+        ranges_from_fields(fields)
 
 
 def test_a_room_name_can_change_a_presets_numeric_knobs_to_find_which_one_makes_it_hard() -> None:

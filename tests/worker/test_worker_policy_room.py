@@ -4,9 +4,11 @@ model was trained in."""
 import json
 from dataclasses import asdict
 
-from core.rooms import ROOM_PRESETS, DomainShift, room_setting, world_room
+from core.rooms import ROOM_PRESETS, DomainShift, RoomRanges, room_setting, world_room
 from learning.rl.ppo import PPOConfig
+from worker.base_models import find_base
 from worker.policy_stage import improvement_config
+from worker.run_context import recorded_ranges
 
 
 def test_a_robot_in_a_held_out_room_improves_its_policy_in_that_room_not_in_the_base_models_rooms() -> None:
@@ -52,6 +54,18 @@ def test_a_second_fine_tune_replays_the_base_models_rooms_not_the_first_fine_tun
     assert second.replay_room == "randomised" and second.replay_envs == 2
 
 
+def test_a_base_model_is_replayed_in_the_ranges_its_record_keeps_not_in_todays_ranges() -> None:
+    recorded = RoomRanges(object_textures=(None, "noise"), floor_textures=(None, "noise"))
+    unseen = ROOM_PRESETS["unseen_room"]()
+    first = improvement_config(PPOConfig(room="randomised"), 800, 0, unseen, None, 0.25, recorded)
+    assert world_room(first.replay_room) == recorded != RoomRanges()
+    assert (
+        PPOConfig.from_dict(json.loads(json.dumps(asdict(first)))) == first
+    )  # a resumed run replays them too
+    second = improvement_config(first, 800, 1, unseen, None, 0.25)
+    assert world_room(second.replay_room) == recorded
+
+
 def test_a_base_model_trained_in_the_training_room_is_replayed_there() -> None:
     config = improvement_config(PPOConfig(room="training"), 800, 0, ROOM_PRESETS["unseen_room"](), None, 0.25)
     assert config.replay_room == "training"
@@ -60,3 +74,10 @@ def test_a_base_model_trained_in_the_training_room_is_replayed_there() -> None:
 def test_a_real_robot_has_no_simulated_rooms_to_replay() -> None:
     config = improvement_config(PPOConfig(room="randomised"), 800, 0, None, "in-process:arm-1", 0.25)
     assert (config.num_envs, config.replay_envs) == (1, 0)
+
+
+def test_a_base_model_versions_record_gives_the_ranges_it_was_trained_over() -> None:
+    shipped = recorded_ranges({"base_model": find_base("kuka").record})
+    assert shipped is not None and shipped.object_textures == (None, "noise")  # before stripes and speckle
+    assert recorded_ranges({"base_model": {"room_ranges": None}}) is None  # trained in the training room
+    assert recorded_ranges({"var_finetune": {}}) is None  # a household's version: its config keeps them
