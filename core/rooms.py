@@ -18,6 +18,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from core.plain import as_lists
+
 TEXTURES = ("checker", "noise", "stripes", "speckle")  # sim.textures draws each
 
 _Rgb = tuple[float, float, float]
@@ -345,7 +347,7 @@ def _knob_value(name: str, field_name: str, text: str) -> Any:
 
 def ranges_setting(ranges: RoomRanges) -> dict[str, Any]:
     """Ranges as a config value that `world_room` reads back, in the lists JSON gives back."""
-    return {"ranges": _as_lists(dataclasses.asdict(ranges))}
+    return {"ranges": as_lists(dataclasses.asdict(ranges))}
 
 
 def ranges_from_fields(fields: Mapping[str, Any]) -> RoomRanges:
@@ -365,17 +367,9 @@ def ranges_from_fields(fields: Mapping[str, Any]) -> RoomRanges:
     return RoomRanges(**values)
 
 
-def _as_lists(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {key: _as_lists(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [_as_lists(item) for item in value]
-    return value
-
-
 def room_setting(room: DomainShift | None) -> str | dict[str, Any]:
     """A room as a config value that `world_room` reads back: "training" for None, else its DomainShift
     fields as JSON gives them back (lists, not tuples), so a config read from disk compares equal to it."""
     if room is None:
         return TRAINING_ROOM
-    return _as_lists(dataclasses.asdict(room))
+    return as_lists(dataclasses.asdict(room))

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from core.plain import as_lists
 from learning.front_ends import MFCC
 from learning.var.checkpoint import (
     CheckpointMismatchError,
@@ -240,7 +241,7 @@ class _Trainer:
             manifest_hash=self.corpus_hash,
             sound_set=self.config.sounds,
             world=self.source.images.meta.get("world"),
-            train_config=_plain(self.config.to_dict()),
+            train_config=as_lists(self.config.to_dict()),
             training={
                 "step": self.step,
                 "optimizer": self.optimizer.state_dict(),
@@ -506,12 +507,3 @@ def _truncate_metrics(path: Path, step: int) -> None:
 
 def _rng_state(rng: np.random.Generator) -> dict[str, Any]:
     return rng.bit_generator.state
-
-
-def _plain(value: Any) -> Any:
-    """Tuples → lists so the checkpoint stays loadable with torch.load(weights_only=True)."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    return value
