@@ -19,6 +19,7 @@ AS_BEFORE = {
     "reward_against_others": False,
     "policy_colour_jitter": 0.0,
     "policy_hue_turn": 0.0,
+    "policy_view_shift": 0,
 }
 DATA_DIR_PREFIXES = ("$VARBOT_DATA_DIR/", "data/")  # a data directory elsewhere, or the default one
 

@@ -95,6 +95,14 @@ def train(
             "within ± this many degrees (0: off; experimental, learning.rl.colours)."
         ),
     ] = 0.0,
+    policy_view_shift: Annotated[
+        int,
+        typer.Option(
+            help="Each episode also shifts the policy's view by up to ± this many pixels of its "
+            "--policy-image-size view, as a camera moved sideways would (0: off; experimental, "
+            "learning.rl.view_changes)."
+        ),
+    ] = 0,
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
@@ -133,6 +141,7 @@ def train(
         reward_temperature=reward_temperature,
         policy_colour_jitter=policy_colour_jitter,
         policy_hue_turn=policy_hue_turn,
+        policy_view_shift=policy_view_shift,
     )
     run_dir = run_dir or data_dir() / "rl" / "runs" / f"{world}-{sounds}-{method}"
     try:

@@ -45,7 +45,6 @@ from learning.rl.checkpoints import (  # the F401 ones: callers reach them throu
     with_legacy_run_options,
     write_run_checkpoint,
 )
-from learning.rl.colours import EpisodeColours
 from learning.rl.curriculum import Curriculum
 from learning.rl.env_groups import EnvGroups, ended_view, env_rooms
 from learning.rl.frozen_var import LoadedVar, VarOnDevice
@@ -55,6 +54,7 @@ from learning.rl.policy import GoalFusion, Policy, PolicyConfig, downsample_imag
 from learning.rl.pretrain import load_encoders_into
 from learning.rl.rewards import ClipBank, RewardKind, StepOutcome, make_reward
 from learning.rl.stats import EpisodeStats, EpisodeTracker, PeakMemory, Timings, mean_or_nan
+from learning.rl.view_changes import EpisodeViewChanges
 from learning.rl.watch import (
     EnvZeroWatch,
     RolloutStep,  # noqa: F401  (callers watch runs through this module)
@@ -87,6 +87,7 @@ class PPOConfig:
     # each episode the policy sees its view in other colours (learning.rl.colours; 0: off); experimental
     policy_colour_jitter: float = 0.0
     policy_hue_turn: float = 0.0  # and turns its hues by up to ± this many degrees (learning.rl.colours)
+    policy_view_shift: int = 0  # and shifts its view by up to ± this many pixels (learning.rl.view_changes)
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
     max_episode_steps: int | None = None  # None: the world's own T (100)
     # core.rooms.world_room: "training", "randomised" (a room per episode), a preset, or DomainShift fields
@@ -136,6 +137,11 @@ class PPOConfig:
             raise ValueError(f"policy_colour_jitter must be in [0, 1), got {self.policy_colour_jitter}")
         if not 0.0 <= self.policy_hue_turn <= 180.0:
             raise ValueError(f"policy_hue_turn must be in [0, 180] degrees, got {self.policy_hue_turn}")
+        if not 0 <= self.policy_view_shift < self.policy_image_size // 2:
+            raise ValueError(
+                f"policy_view_shift must be in [0, {self.policy_image_size // 2}) pixels of the policy's "
+                f"{self.policy_image_size}-pixel view, got {self.policy_view_shift}"
+            )
         if not 0 <= self.replay_envs < self.num_envs:
             raise ValueError(
                 f"replay_envs ({self.replay_envs}) must leave at least one of the {self.num_envs} "
@@ -356,11 +362,13 @@ class PPOTrainer:
         seeds = [int(s) for s in np.random.SeedSequence([c.seed, self.update_index]).generate_state(E)]
         obs, info = self.envs.reset(seeds)
         self.needs_reset = False
-        self.colours = EpisodeColours(E, c.policy_colour_jitter, c.policy_hue_turn)
-        self.colours.draw(np.arange(E), self.rng)
+        self.view_changes = EpisodeViewChanges(
+            E, c.policy_colour_jitter, c.policy_hue_turn, c.policy_view_shift
+        )
+        self.view_changes.draw(np.arange(E), self.rng)
         with torch.inference_mode():
             images = downsample_images(torch.from_numpy(obs["image"]), c.policy_image_size)
-            self.next_policy_images = self.colours.apply(images, slice(None))
+            self.next_policy_images = self.view_changes.apply(images, slice(None))
             self.next_var = self._encode_images(obs["image"])
         self.next_state = torch.from_numpy(obs["state"]).float()
         self.next_start = torch.ones(E)
@@ -485,7 +493,7 @@ class PPOTrainer:
         cut = np.flatnonzero(truncated & ~terminated) if c.bootstrap_truncated else []
         if len(cut):
             final_images = downsample_images(torch.from_numpy(ended.images[cut]), c.policy_image_size)
-            final_images = self.colours.apply(final_images, cut + group.start)  # the ended episode's colours
+            final_images = self.view_changes.apply(final_images, cut + group.start)  # the ended episode's
             envs = torch.from_numpy(cut + group.start)
             _, final_value, _ = self.policy.step(
                 final_images, reward_embedding[cut], torch.from_numpy(ended.state[cut]),
@@ -498,9 +506,9 @@ class PPOTrainer:
         if len(done_envs):
             next_var[done_envs] = reset_embedding
         self.next_var[group] = next_var
-        self.colours.draw(done_envs + group.start, self.rng)
+        self.view_changes.draw(done_envs + group.start, self.rng)
         images = downsample_images(torch.from_numpy(obs["image"]), c.policy_image_size)
-        self.next_policy_images[group] = self.colours.apply(images, group)
+        self.next_policy_images[group] = self.view_changes.apply(images, group)
         self.next_state[group] = torch.from_numpy(np.asarray(obs["state"], dtype=np.float32))
         self.next_start[group] = torch.from_numpy(done.astype(np.float32))
         self.heard[group] = np.asarray(info["heard"], dtype=np.int64)

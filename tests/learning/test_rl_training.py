@@ -456,24 +456,27 @@ def test_replay_environments_are_spread_over_the_groups_and_never_the_watched_on
     assert env_rooms(4, "own", 3, "base")[0] == "own"
 
 
-def test_colour_jitter_changes_only_what_the_policy_sees_and_once_per_episode(
+def test_view_changes_change_only_what_the_policy_sees_and_once_per_episode(
     tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
 ) -> None:
     plain = make(tiny_config(), tmp_path / "plain", var_checkpoint, goal_clips)
-    jittered = make(tiny_config(policy_colour_jitter=0.3), tmp_path / "jittered", var_checkpoint, goal_clips)
+    changed_config = tiny_config(policy_colour_jitter=0.3, policy_hue_turn=30.0, policy_view_shift=2)
+    changed = make(changed_config, tmp_path / "changed", var_checkpoint, goal_clips)
     try:
-        for trainer in (plain, jittered):
+        for trainer in (plain, changed):
             trainer.reset_envs()
-        torch.testing.assert_close(jittered.next_var, plain.next_var)  # the VAR sees the real view
-        shown = jittered.colours.apply(plain.next_policy_images, slice(None))
-        assert torch.equal(jittered.next_policy_images, shown)
-        assert not torch.equal(jittered.next_policy_images, plain.next_policy_images)
-        at_reset = jittered.colours.mixes.clone()
-        buf, finished = jittered.collect_rollout()
-        jittered.update(buf)
+        torch.testing.assert_close(changed.next_var, plain.next_var)  # the VAR sees the real view
+        shown = changed.view_changes.apply(plain.next_policy_images, slice(None))
+        assert torch.equal(changed.next_policy_images, shown)
+        assert not torch.equal(changed.next_policy_images, plain.next_policy_images)
+        colours_at_reset = changed.view_changes.colours.mixes.clone()
+        shifts_at_reset = changed.view_changes.shifts.offsets.copy()
+        buf, finished = changed.collect_rollout()
+        changed.update(buf)
     finally:
         plain.close()
-        jittered.close()
-    assert len(finished) >= jittered.config.num_envs  # every env ended an episode (5 steps) in 12 steps
-    for env in range(jittered.config.num_envs):
-        assert not torch.equal(jittered.colours.mixes[env], at_reset[env])  # so each drew new colours
+        changed.close()
+    assert len(finished) >= changed.config.num_envs  # every env ended an episode (5 steps) in 12 steps
+    for env in range(changed.config.num_envs):
+        assert not torch.equal(changed.view_changes.colours.mixes[env], colours_at_reset[env])  # new colours
+    assert not np.array_equal(changed.view_changes.shifts.offsets, shifts_at_reset)  # and new shifts
