@@ -1,6 +1,6 @@
 """Per-episode colours of the policy's view (`learning.rl.colours`): each episode shows the policy its view
-with the RGB channels shuffled and scaled, and optionally its hues turned, one change per episode; switched
-off, nothing changes and no random number is drawn."""
+with the RGB channels shuffled and scaled, and optionally its hues turned, one change per episode (switched
+off: tests/learning/test_rl_view_changes.py)."""
 
 import colorsys
 import itertools
@@ -17,15 +17,6 @@ VIEW_RGB = (200.0, 100.0, 40.0)
 
 def views(num: int) -> torch.Tensor:
     return torch.tensor(VIEW_RGB).repeat(num, 4, 4, 1).to(torch.uint8)
-
-
-def test_switched_off_it_shows_the_real_view_and_draws_nothing() -> None:
-    colours = EpisodeColours(num_envs=2, spread=0.0)
-    rng = np.random.default_rng(0)
-    before = rng.bit_generator.state
-    colours.draw(np.arange(2), rng)
-    assert rng.bit_generator.state == before
-    assert torch.equal(colours.apply(views(2), slice(None)), views(2))
 
 
 def test_an_episode_sees_each_channel_once_scaled_by_a_gain_within_the_spread() -> None:

@@ -1,11 +1,12 @@
 """Per-episode shifts of the policy's view (`learning.rl.view_changes`): each episode the whole view moves by
-a few pixels, as a camera moved sideways would move it, after its colours change; switched off, nothing
-changes and no random number is drawn."""
+a few pixels, as a camera moved sideways would move it, after its colours change; switched off, neither
+change changes anything or draws a random number."""
 
 import numpy as np
 import pytest
 import torch
 
+from learning.rl.colours import EpisodeColours
 from learning.rl.ppo import PPOConfig
 from learning.rl.view_changes import EpisodeShifts, EpisodeViewChanges
 
@@ -17,13 +18,23 @@ def marked_views(num: int, size: int = 8) -> torch.Tensor:
     return views
 
 
-def test_switched_off_it_shows_the_real_view_and_draws_nothing() -> None:
-    shifts = EpisodeShifts(num_envs=2, max_pixels=0)
+@pytest.mark.parametrize(
+    "switched_off",
+    [
+        EpisodeColours(num_envs=2, spread=0.0, hue_degrees=0.0),
+        EpisodeShifts(num_envs=2, max_pixels=0),
+        EpisodeViewChanges(num_envs=2, colour_jitter=0.0, hue_turn=0.0, shift_pixels=0),
+    ],
+    ids=["colours", "shifts", "both"],
+)
+def test_switched_off_a_change_shows_the_real_view_and_draws_nothing(
+    switched_off: EpisodeColours | EpisodeShifts | EpisodeViewChanges,
+) -> None:
     rng = np.random.default_rng(0)
     before = rng.bit_generator.state
-    shifts.draw(np.arange(2), rng)
+    switched_off.draw(np.arange(2), rng)
     assert rng.bit_generator.state == before
-    assert torch.equal(shifts.apply(marked_views(2), slice(None)), marked_views(2))
+    assert torch.equal(switched_off.apply(marked_views(2), slice(None)), marked_views(2))
 
 
 def test_an_episode_sees_its_whole_view_moved_by_its_own_offset_within_the_limit() -> None:
