@@ -6,7 +6,7 @@ from dataclasses import asdict
 
 from core.rooms import ROOM_PRESETS, DomainShift, RoomRanges, room_setting, world_room
 from learning.rl.ppo import PPOConfig
-from worker.base_models import find_base
+from worker.base_models import SHIPPED_DIR, BaseModel
 from worker.policy_stage import improvement_config
 from worker.run_context import recorded_ranges
 
@@ -77,7 +77,8 @@ def test_a_real_robot_has_no_simulated_rooms_to_replay() -> None:
 
 
 def test_a_base_model_versions_record_gives_the_ranges_it_was_trained_over() -> None:
-    shipped = recorded_ranges({"base_model": find_base("kuka").record})
+    shipped_record = BaseModel("kuka", SHIPPED_DIR / "kuka").record  # not find_base: tests ship their own
+    shipped = recorded_ranges({"base_model": shipped_record})
     assert shipped is not None and shipped.object_textures == (None, "noise")  # before stripes and speckle
     assert recorded_ranges({"base_model": {"room_ranges": None}}) is None  # trained in the training room
     assert recorded_ranges({"var_finetune": {}}) is None  # a household's version: its config keeps them
