@@ -12,8 +12,13 @@ load average says how much, so two runs are compared only at a similar load.
 import os
 import platform
 import sys
+from collections.abc import Callable
 from importlib import metadata
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from rich.table import Table
 
 LOADAVG = Path("/proc/loadavg")
 MEMINFO = Path("/proc/meminfo")
@@ -88,3 +93,29 @@ def describe(record: dict) -> str:
         f"Python {found['python']}, torch {found['torch']}; load average (1 min) "
         f"{load['before']['1_min']:.1f} before, {load['after']['1_min']:.1f} after"
     )
+
+
+def measure_and_publish(
+    benchmark: str,
+    measure: Callable[[], dict],
+    table: "Callable[[dict], Table]",
+    out: Path,
+    argv: list[str] | None,
+) -> dict:
+    """The single-result benches' whole run: the measurement under recorded conditions, its JSON at `out`
+    (with when and by which command), then its table and the conditions line."""
+    import time
+
+    from result_files import write_result
+    from rich.console import Console
+
+    conditions = Conditions()
+    result = {"benchmark": benchmark, **measure()}
+    result.update(conditions.finish())
+    result["measured"] = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
+    result["command"] = " ".join([f"bench/{benchmark}.py", *(argv if argv is not None else sys.argv[1:])])
+    write_result(out, result)
+    console = Console()
+    console.print(table(result))
+    console.print(describe(result))
+    return result

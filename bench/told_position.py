@@ -19,9 +19,8 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from conditions import Conditions, describe
-from result_files import relative_path, write_result
-from rich.console import Console
+from conditions import measure_and_publish
+from result_files import relative_path
 from rich.table import Table
 
 RESULTS = Path(__file__).resolve().parent / "results" / "told_position.json"
@@ -118,15 +117,7 @@ def table(result: dict) -> Table:
 
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
-    conditions = Conditions()
-    result = {"benchmark": "told_position", **measure(args)}
-    result.update(conditions.finish())
-    result["measured"] = time.strftime("%Y-%m-%d %H:%M", time.gmtime())
-    result["command"] = " ".join(["bench/told_position.py", *(argv if argv is not None else sys.argv[1:])])
-    write_result(args.out, result)
-    console = Console()
-    console.print(table(result))
-    console.print(describe(result))
+    measure_and_publish("told_position", lambda: measure(args), table, args.out, argv)
 
 
 if __name__ == "__main__":
