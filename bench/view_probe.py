@@ -90,20 +90,17 @@ def encoders(base_folder: Path) -> dict[str, Callable[[np.ndarray], np.ndarray]]
 
     from learning.rl.checkpoints import load_policy
     from learning.rl.frozen_var import load_frozen_var
-    from learning.rl.policy import downsample_images
 
     var = load_frozen_var(base_folder / "var.pt").model  # type: ignore[union-attr]
     policy, _ = load_policy(base_folder / "policy.pt")
-    image_encoder, size = var.image_encoder, policy.config.policy_image_size
 
     def var_hidden(images: np.ndarray) -> np.ndarray:  # the head's first layer, before the embedding
-        x = torch.from_numpy(images).permute(0, 3, 1, 2).float().div_(127.5).sub_(1.0)
         with torch.no_grad():
-            return image_encoder.head[:3](image_encoder.features(x)).numpy()
+            return var.image_encoder.hidden(torch.from_numpy(images)).numpy()
 
     def policy_encoder(images: np.ndarray) -> np.ndarray:
         with torch.no_grad():
-            return policy.image_encoder(downsample_images(torch.from_numpy(images), size)).numpy()
+            return policy.image_encoder(policy.view_of(torch.from_numpy(images))).numpy()
 
     return {"VAR image encoder (hidden layer)": var_hidden, "policy image encoder": policy_encoder}
 

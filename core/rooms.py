@@ -358,8 +358,9 @@ def ranges_from_fields(fields: Mapping[str, Any]) -> RoomRanges:
     if unknown:
         raise ValueError(f"unknown room range field(s) {unknown}; known: {', '.join(sorted(known))}")
     values: dict[str, Any] = {}
+    today = RoomRanges()
     for name, value in fields.items():
-        if name.endswith("_colour"):
+        if isinstance(getattr(today, name), ColourRange):
             hues = tuple(tuple(interval) for interval in value["hues_deg"])
             values[name] = ColourRange(hues, tuple(value["saturation"]), tuple(value["value"]))
         else:

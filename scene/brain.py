@@ -12,7 +12,6 @@ import numpy as np
 import torch
 
 from learning.audio import AudioError, features_from_bytes
-from learning.rl.policy import downsample_images
 from learning.rl.ppo import load_policy
 from learning.var.checkpoint import load_var
 
@@ -79,7 +78,7 @@ class Brain:
         if self.policy is None or self.goal_features is None or self.hidden is None:
             raise RuntimeError("no policy episode is running: call start_episode first")
         config = self.policy.config
-        images = downsample_images(torch.from_numpy(image[None]), config.policy_image_size)
+        images = self.policy.view_of(torch.from_numpy(image[None]))
         var_embedding = torch.from_numpy(image_embedding[None]).float()[:, : config.var_dim]
         mean, _, self.hidden = self.policy.step(
             images,

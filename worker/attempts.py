@@ -220,7 +220,6 @@ def policy_player(
     import torch
 
     from learning.rl.envs import make_env_fn, world_id
-    from learning.rl.policy import downsample_images
     from learning.rl.ppo import load_policy
 
     policy, payload = load_policy(policy_path)
@@ -246,8 +245,7 @@ def policy_player(
             image = torch.from_numpy(np.asarray(observation["image"])[None])
             seen = var.encode_image(image) if config.var_dim else torch.zeros(1, 0)
             state = torch.from_numpy(np.asarray(observation["state"], dtype=np.float32)[None])
-            images = downsample_images(image, config.policy_image_size)
-            mean, _, hidden = policy.step(images, seen, state, goal_features, hidden, start)
+            mean, _, hidden = policy.step(policy.view_of(image), seen, state, goal_features, hidden, start)
             observation, _, terminated, truncated, info = env.step(mean.clamp(-1.0, 1.0)[0].numpy())
             frames.append(observation["image"])
             start, done = torch.zeros(1), bool(terminated or truncated)

@@ -103,6 +103,13 @@ def train(
             "learning.rl.view_changes)."
         ),
     ] = 0,
+    policy_view: Annotated[
+        str,
+        typer.Option(
+            help="pixels: the policy's own CNN sees a --policy-image-size copy of the view; var: it sees "
+            "through a frozen copy of the VAR's image encoder, up to its hidden layer (experimental)."
+        ),
+    ] = "pixels",
     resume: Annotated[bool, typer.Option("--resume", help="Continue the run in --run-dir.")] = False,
 ) -> None:
     """Train a policy with PPO (8 worker processes); checkpoints, metrics and curves go to the run dir."""
@@ -142,6 +149,7 @@ def train(
         policy_colour_jitter=policy_colour_jitter,
         policy_hue_turn=policy_hue_turn,
         policy_view_shift=policy_view_shift,
+        policy_view=policy_view,
     )
     run_dir = run_dir or data_dir() / "rl" / "runs" / f"{world}-{sounds}-{method}"
     try:

@@ -20,7 +20,7 @@ import numpy as np
 import torch
 
 from learning.rl.envs import NO_SOUND, make_vector_env, world_id
-from learning.rl.policy import Policy, PolicyConfig, downsample_images
+from learning.rl.policy import Policy, PolicyConfig
 from learning.rl.rewards import ClipBank
 
 NUM_INTENTS = 4  # every world has four intents (the shared contract)
@@ -126,7 +126,7 @@ def evaluate(
             while len(results) < len(schedule):
                 if gif_path is not None and episode[0] < gif_episodes and episode[0] >= 0:
                     frames.append(obs["image"][0])
-                images = downsample_images(torch.from_numpy(obs["image"]), config.policy_image_size)
+                images = policy.view_of(torch.from_numpy(obs["image"]))
                 state = torch.from_numpy(np.asarray(obs["state"], dtype=np.float32))
                 mean, _, hidden = policy.step(images, var_embedding, state, goal_features, hidden, start)
                 obs, _, terminated, truncated, info = envs.step(mean.clamp(-1.0, 1.0).numpy())
@@ -188,6 +188,9 @@ class RandomPolicy:
 
     def encode_goal(self, goal: torch.Tensor) -> torch.Tensor:
         return torch.zeros(len(goal), 1)
+
+    def view_of(self, images: torch.Tensor) -> torch.Tensor:
+        return images
 
     def step(self, images, var_embedding, state, goal_features, hidden, episode_start):
         action = torch.rand(len(state), self.action_dim, generator=self.generator) * 2 - 1

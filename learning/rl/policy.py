@@ -32,6 +32,7 @@ GoalEncoder = Literal["var", "learned"]
 MFCC_SHAPE = (100, 40)
 GOAL_FEATURES = 64  # what the goal MLP (VAR) or the goal CNN (baselines) hands to the heads
 GoalFusion = Literal["core", "image"]
+PolicyView = Literal["pixels", "var"]
 
 
 @dataclass(frozen=True)
@@ -51,6 +52,9 @@ class PolicyConfig:
     goal_fusion: GoalFusion = "image"
     bounded_mean: bool = True  # tanh on the action mean
     goal_match: bool = False  # also give the fusion f_I(I_t)·f_S(S_goal): the reward it is earning now
+    # None: its own CNN sees a policy_image_size copy of the view. A VARConfig's fields: it sees through a
+    # frozen copy of that VAR's image encoder, up to its hidden layer (`VarView`)
+    view_var: dict | None = None
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -95,6 +99,27 @@ class ImageEncoder(nn.Module):
         return self.fc(self.conv(x))
 
 
+class VarView(nn.Module):
+    """A frozen copy of a VAR's image encoder up to its hidden layer: uint8 views at the VAR's size → (B,
+    hidden). It is the policy's own copy, saved with it, so a household's fine-tune of the VAR does not change
+    what the policy sees; it stays in eval mode (its batch norms keep the statistics the VAR learnt)."""
+
+    def __init__(self, var_fields: dict) -> None:
+        from learning.var.model import ImageEncoder as VarImageEncoder
+        from learning.var.model import VARConfig
+
+        super().__init__()
+        self.encoder = VarImageEncoder(VARConfig.from_dict(var_fields)).requires_grad_(False).eval()
+        self.features = VARConfig.from_dict(var_fields).hidden
+
+    def train(self, mode: bool = True) -> "VarView":
+        return self  # frozen: never back into training mode
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            return self.encoder.hidden(images)
+
+
 class SoundEncoder(nn.Module):
     """MFCC (B, 100, 40) → features; used only by the baselines, which learn their own goal encoder."""
 
@@ -122,7 +147,13 @@ class Policy(nn.Module):
         super().__init__()
         self.config = config
         h = config.hidden
-        self.image_encoder = ImageEncoder(config.policy_image_size, h)
+        if config.view_var is not None:
+            self.var_view = VarView(config.view_var)
+            self.image_encoder: nn.Module = nn.Sequential(
+                layer_init(nn.Linear(self.var_view.features, h)), nn.ReLU()
+            )
+        else:
+            self.image_encoder = ImageEncoder(config.policy_image_size, h)
         self.vector_encoder = nn.Sequential(
             layer_init(nn.Linear(config.var_dim + config.state_dim, h)), nn.ReLU()
         )
@@ -180,6 +211,14 @@ class Policy(nn.Module):
     @property
     def goal_feature_size(self) -> int:
         return GOAL_FEATURES + (self.config.goal_dim if self.config.goal_match else 0)
+
+    def view_of(self, images: torch.Tensor) -> torch.Tensor:
+        """uint8 (B, H, W, 3) rendered views → what the policy's step takes for them (and its buffers keep):
+        the smaller copy its CNN sees, or the features of its frozen VAR view."""
+        if self.config.view_var is None:
+            return downsample_images(images, self.config.policy_image_size)
+        (images,) = self._here(images)
+        return self.var_view(images).cpu()
 
     def encode_goal(self, goal: torch.Tensor) -> torch.Tensor:
         """goal: (B, goal_dim) VAR embedding, or (B, 100, 40) MFCC for a learned encoder. Once per episode.

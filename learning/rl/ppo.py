@@ -50,7 +50,7 @@ from learning.rl.env_groups import EnvGroups, ended_view, env_rooms
 from learning.rl.frozen_var import LoadedVar, VarOnDevice
 from learning.rl.goals import EpisodeGoals, goal_source
 from learning.rl.normalize import ReturnNormalizer
-from learning.rl.policy import GoalFusion, Policy, PolicyConfig, downsample_images
+from learning.rl.policy import GoalFusion, Policy, PolicyConfig, PolicyView
 from learning.rl.pretrain import load_encoders_into
 from learning.rl.rewards import ClipBank, RewardKind, StepOutcome, make_reward
 from learning.rl.stats import EpisodeStats, EpisodeTracker, PeakMemory, Timings, mean_or_nan
@@ -84,6 +84,9 @@ class PPOConfig:
     target_intents: list[int] | None = None  # diagnostics: the world asks only for these targets (None: all)
     image_size: int = 96  # rendered size; must equal the VAR's input size
     policy_image_size: int = PolicyConfig.policy_image_size
+    # "var": the policy sees through a frozen copy of the VAR's image encoder (its hidden layer), not through
+    # a CNN of its own trained by PPO alone; experimental
+    policy_view: PolicyView = "pixels"
     # each episode the policy sees its view in other colours (learning.rl.colours; 0: off); experimental
     policy_colour_jitter: float = 0.0
     policy_hue_turn: float = 0.0  # and turns its hues by up to ± this many degrees (learning.rl.colours)
@@ -141,6 +144,14 @@ class PPOConfig:
             raise ValueError(
                 f"policy_view_shift must be in [0, {self.policy_image_size // 2}) pixels of the policy's "
                 f"{self.policy_image_size}-pixel view, got {self.policy_view_shift}"
+            )
+        if self.policy_view not in ("pixels", "var"):
+            raise ValueError(f"policy_view must be 'pixels' or 'var', got {self.policy_view!r}")
+        view_changed = self.policy_colour_jitter or self.policy_hue_turn or self.policy_view_shift
+        if self.policy_view == "var" and (self.goal_encoder != "var" or view_changed):
+            raise ValueError(
+                "a policy that sees through the VAR needs the VAR (goal_encoder='var'), and sees the real "
+                "view: colour jitter, hue turns and view shifts change the pixels of its own CNN"
             )
         if not 0 <= self.replay_envs < self.num_envs:
             raise ValueError(
@@ -310,6 +321,10 @@ class PPOTrainer:
         self.episodes = EpisodeTracker(self.stats, success_known=self.goals.has_intents)
         torch.manual_seed(c.seed)
         self.policy = Policy(self._policy_config())
+        if c.policy_view == "var":  # a new policy sees through this run's VAR; a loaded one keeps its own
+            self.policy.var_view.encoder.load_state_dict(
+                getattr(self.var, "model", self.var).image_encoder.state_dict()
+            )
         if c.init_encoders is not None:
             self.label_counts.update(load_encoders_into(self.policy, c.init_encoders))
         if self.init_policy is not None:
@@ -334,6 +349,7 @@ class PPOTrainer:
             goal_fusion=c.goal_fusion,
             bounded_mean=c.bounded_mean,
             goal_match=c.goal_match,
+            view_var=self.var.config.to_dict() if c.policy_view == "var" else None,
         )
 
     def close(self) -> None:
@@ -367,7 +383,7 @@ class PPOTrainer:
         )
         self.view_changes.draw(np.arange(E), self.rng)
         with torch.inference_mode():
-            images = downsample_images(torch.from_numpy(obs["image"]), c.policy_image_size)
+            images = self.policy.view_of(torch.from_numpy(obs["image"]))
             self.next_policy_images = self.view_changes.apply(images, slice(None))
             self.next_var = self._encode_images(obs["image"])
         self.next_state = torch.from_numpy(obs["state"]).float()
@@ -384,9 +400,9 @@ class PPOTrainer:
 
     # -- rollout ---------------------------------------------------------------------------------------------
     def _allocate(self) -> Rollout:
-        T, E, p = self.config.num_steps, self.config.num_envs, self.config.policy_image_size
+        T, E, view = self.config.num_steps, self.config.num_envs, self.next_policy_images
         return Rollout(
-            images=torch.zeros(T, E, p, p, 3, dtype=torch.uint8),
+            images=torch.zeros(T, E, *view.shape[1:], dtype=view.dtype),
             var_embedding=torch.zeros(T, E, self.next_var.shape[1]),
             state=torch.zeros(T, E, self.state_dim),
             goal=self.goal_source.allocate(T, E),
@@ -492,7 +508,7 @@ class PPOTrainer:
         reward = self.normalise(group, raw, done)
         cut = np.flatnonzero(truncated & ~terminated) if c.bootstrap_truncated else []
         if len(cut):
-            final_images = downsample_images(torch.from_numpy(ended.images[cut]), c.policy_image_size)
+            final_images = self.policy.view_of(torch.from_numpy(ended.images[cut]))
             final_images = self.view_changes.apply(final_images, cut + group.start)  # the ended episode's
             envs = torch.from_numpy(cut + group.start)
             _, final_value, _ = self.policy.step(
@@ -507,7 +523,7 @@ class PPOTrainer:
             next_var[done_envs] = reset_embedding
         self.next_var[group] = next_var
         self.view_changes.draw(done_envs + group.start, self.rng)
-        images = downsample_images(torch.from_numpy(obs["image"]), c.policy_image_size)
+        images = self.policy.view_of(torch.from_numpy(obs["image"]))
         self.next_policy_images[group] = self.view_changes.apply(images, group)
         self.next_state[group] = torch.from_numpy(np.asarray(obs["state"], dtype=np.float32))
         self.next_start[group] = torch.from_numpy(done.astype(np.float32))

@@ -35,14 +35,11 @@ class EpisodeShifts:
         """(N, H, W, C) views of environments `envs` → the same views shifted by their episodes' offsets."""
         if not self.active:
             return images
-        m = self.max_pixels
-        padded = torch.nn.functional.pad(images.permute(0, 3, 1, 2).float(), (m, m, m, m), mode="replicate")
-        height, width = images.shape[1:3]
-        shifted = [
-            padded[n, :, m - dy : m - dy + height, m - dx : m - dx + width]
-            for n, (dy, dx) in enumerate(self.offsets[envs])
-        ]
-        return torch.stack(shifted).permute(0, 2, 3, 1).to(images.dtype)
+        offsets = torch.from_numpy(self.offsets[envs])
+        count, height, width = images.shape[:3]
+        rows = (torch.arange(height) - offsets[:, :1]).clamp_(0, height - 1)  # (N, H): the source row of each
+        cols = (torch.arange(width) - offsets[:, 1:]).clamp_(0, width - 1)
+        return images[torch.arange(count)[:, None, None], rows[:, :, None], cols[:, None, :]]
 
 
 class EpisodeViewChanges:

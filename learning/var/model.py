@@ -75,9 +75,14 @@ class ImageEncoder(nn.Module):
         )
 
     def forward(self, images: torch.Tensor) -> torch.Tensor:
+        return self.head[-1](self.hidden(images))
+
+    def hidden(self, images: torch.Tensor) -> torch.Tensor:
+        """uint8 (B, H, W, 3) → the (B, hidden) layer before the embedding: where things are in view, in more
+        numbers than the sphere keeps (what a policy that sees through the VAR reads)."""
         x = images.permute(0, 3, 1, 2).float().div_(127.5).sub_(1.0)
         x = x.contiguous(memory_format=torch.channels_last)
-        return self.head(self.features(x))
+        return self.head[:-1](self.features(x))
 
 
 class SoundEncoder(nn.Module):

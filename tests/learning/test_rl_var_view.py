@@ -1,0 +1,117 @@
+"""A policy that sees through the VAR (`--policy-view var`): it reads a frozen copy of the VAR's image encoder
+up to its hidden layer instead of training a CNN of its own, keeps that copy through updates, checkpoints
+and a later VAR, and acts and is evaluated like any other policy."""
+
+import subprocess
+from pathlib import Path
+
+import pytest
+import torch
+from rl_helpers import IMAGE, tiny_config
+
+from learning.rl.checkpoints import load_initial_policy, load_policy
+from learning.rl.evaluate import evaluate
+from learning.rl.frozen_var import load_frozen_var
+from learning.rl.ppo import PPOConfig, PPOTrainer
+from learning.rl.rewards import ClipBank, clip_bank_from_paths
+from learning.var.checkpoint import save_var
+from learning.var.model import VAR, VARConfig
+
+pytestmark = [pytest.mark.slow, pytest.mark.speech]
+
+
+@pytest.fixture(scope="module")
+def goal_clips(tmp_path_factory: pytest.TempPathFactory) -> ClipBank:
+    folder = tmp_path_factory.mktemp("clips")
+    specs = []
+    for intent, word in enumerate(["zero", "one", "two", "three"]):
+        path = folder / f"{word}.wav"
+        subprocess.run(["espeak-ng", "-w", str(path), word], check=True)
+        specs.append(f"{intent}:{path}")
+    return clip_bank_from_paths(specs)
+
+
+def var_file(folder: Path, seed: int) -> Path:
+    torch.manual_seed(seed)
+    return save_var(VAR(VARConfig(image_size=IMAGE)).eval(), folder / f"var-{seed}.pt")
+
+
+def started(
+    config: PPOConfig, run_dir: Path, var_path: Path, clips: ClipBank, **kwargs: object
+) -> PPOTrainer:
+    trainer = PPOTrainer(
+        config, run_dir, load_frozen_var(var_path), ClipBank(clips.features, clips.intents), **kwargs
+    )
+    trainer.start()
+    return trainer
+
+
+def frozen_copy(trainer: PPOTrainer) -> dict[str, torch.Tensor]:
+    return {k: v.clone() for k, v in trainer.policy.var_view.encoder.state_dict().items()}
+
+
+def test_the_policy_reads_the_vars_hidden_layer_and_never_changes_its_copy(
+    tmp_path: Path, goal_clips: ClipBank
+) -> None:
+    var_path = var_file(tmp_path, 0)
+    var = load_frozen_var(var_path).model
+    views = torch.randint(0, 256, (3, IMAGE, IMAGE, 3), dtype=torch.uint8)
+    trainer = started(tiny_config(policy_view="var"), tmp_path / "run", var_path, goal_clips)
+    try:
+        trainer.reset_envs()
+        before = frozen_copy(trainer)
+        buf, _ = trainer.collect_rollout()
+        trainer.update(buf)
+    finally:
+        trainer.close()
+    assert buf.images.dtype == torch.float32 and buf.images.shape[2:] == (VARConfig().hidden,)
+    after = frozen_copy(trainer)
+    assert all(torch.equal(before[k], after[k]) for k in before)  # weights and batch-norm statistics
+    with torch.no_grad():
+        torch.testing.assert_close(trainer.policy.view_of(views), var.image_encoder.hidden(views))
+
+
+def test_its_checkpoint_keeps_the_copy_it_was_trained_with_when_a_later_var_drives_the_run(
+    tmp_path: Path, goal_clips: ClipBank
+) -> None:
+    base = started(tiny_config(policy_view="var"), tmp_path / "base", var_file(tmp_path, 0), goal_clips)
+    try:
+        base.reset_envs()
+        base.update(base.collect_rollout()[0])
+        base.save_checkpoint()
+    finally:
+        base.close()
+    policy, _ = load_policy(base.checkpoint_path)
+    household_var = var_file(tmp_path, 1)  # a household's fine-tuned VAR: other weights, same shape
+    later = started(
+        tiny_config(policy_view="var", seed=4), tmp_path / "later", household_var, goal_clips,
+        init_policy=base.checkpoint_path,
+    )  # fmt: skip
+    later.close()
+    for name, value in policy.var_view.encoder.state_dict().items():
+        assert torch.equal(later.policy.var_view.encoder.state_dict()[name], value)
+    views = torch.randint(0, 256, (3, IMAGE, IMAGE, 3), dtype=torch.uint8)
+    torch.testing.assert_close(policy.view_of(views), base.policy.view_of(views))
+    load_initial_policy(later.policy, base.checkpoint_path)  # the same network: accepted
+
+
+def test_it_is_evaluated_like_any_policy(tmp_path: Path, goal_clips: ClipBank) -> None:
+    var_path = var_file(tmp_path, 0)
+    trainer = started(tiny_config(policy_view="var"), tmp_path / "run", var_path, goal_clips)
+    trainer.close()
+    var = load_frozen_var(var_path).model
+    bank = ClipBank(goal_clips.features, goal_clips.intents).embed(var)
+    result = evaluate(
+        trainer.policy, var, bank, "kuka", IMAGE, split="train",
+        episodes_per_intent=1, num_envs=2, max_steps=3, progress=False,
+    )  # fmt: skip
+    assert len(result.episodes) == 4
+
+
+def test_a_policy_that_sees_through_the_var_refuses_changes_of_its_pixels() -> None:
+    with pytest.raises(ValueError, match="sees the real view"):
+        PPOConfig(policy_view="var", policy_colour_jitter=0.3).validate()
+    with pytest.raises(ValueError, match="needs the VAR"):
+        PPOConfig(policy_view="var", goal_encoder="learned", reward="sparse").validate()
+    with pytest.raises(ValueError, match="'pixels' or 'var'"):
+        PPOConfig(policy_view="eyes").validate()
