@@ -68,6 +68,10 @@ class VarOnDevice:
     def encode_image(self, images: torch.Tensor) -> torch.Tensor:
         return self.model.encode_image(images.to(self.device)).cpu()
 
+    def encode_image_and_hidden(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        embedding, hidden = self.model.encode_image_and_hidden(images.to(self.device))
+        return embedding.cpu(), hidden.cpu()
+
     def encode_sound(self, features: torch.Tensor) -> torch.Tensor:
         return self.model.encode_sound(features.to(self.device)).cpu()
 

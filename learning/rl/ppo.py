@@ -60,6 +60,7 @@ from learning.rl.watch import (
     RolloutStep,  # noqa: F401  (callers watch runs through this module)
     Watcher,
 )
+from learning.var.model import VAR
 
 
 @dataclass
@@ -280,6 +281,7 @@ class PPOTrainer:
         self.envs: EnvGroups | None = None  # started by `start`
         self.policy: Policy | None = None
         self.needs_reset = True  # environments are (re-)seeded before the first update and after a resume
+        self.policy_sees_var = False  # the policy's view is this VAR's hidden layer (set by `reset_envs`)
 
     # -- set-up ----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -322,9 +324,7 @@ class PPOTrainer:
         torch.manual_seed(c.seed)
         self.policy = Policy(self._policy_config())
         if c.policy_view == "var":  # a new policy sees through this run's VAR; a loaded one keeps its own
-            self.policy.var_view.encoder.load_state_dict(
-                getattr(self.var, "model", self.var).image_encoder.state_dict()
-            )
+            self.policy.var_view.encoder.load_state_dict(self._var_model().image_encoder.state_dict())
         if c.init_encoders is not None:
             self.label_counts.update(load_encoders_into(self.policy, c.init_encoders))
         if self.init_policy is not None:
@@ -361,10 +361,32 @@ class PPOTrainer:
         self.watch_env_zero.attach(on_rollout_step, self.envs)
 
     # -- observations ----------------------------------------------------------------------------------------
+    def _var_model(self) -> VAR:
+        return self.var.model if isinstance(self.var, VarOnDevice) else self.var
+
+    def _policy_sees_this_var(self) -> bool:
+        """Whether the policy's frozen view is this run's VAR's image encoder (a base model's run; not a
+        household's, whose VAR was fine-tuned after the policy learnt to see through the base's)."""
+        if self.config.policy_view != "var":
+            return False
+        theirs = self._var_model().image_encoder.state_dict()
+        return all(
+            torch.equal(mine.cpu(), theirs[name].cpu())
+            for name, mine in self.policy.var_view.encoder.state_dict().items()
+        )
+
     def _encode_images(self, images: np.ndarray) -> torch.Tensor:
         if self.var is None:
             return torch.zeros(len(images), 0)
         return self.var.encode_image(torch.from_numpy(images))
+
+    def _see(self, images: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """f_I of rendered views (the observation's and the reward's part) and the policy's view of them,
+        before its episode's view changes. A policy that sees through this very VAR gets the hidden layer of
+        the same pass."""
+        if self.policy_sees_var:
+            return self.var.encode_image_and_hidden(torch.from_numpy(images))
+        return self._encode_images(images), self.policy.view_of(torch.from_numpy(images))
 
     def _send_target_weights(self) -> None:
         weights = self.curriculum.next_weights(self.stats)
@@ -382,10 +404,10 @@ class PPOTrainer:
             E, c.policy_colour_jitter, c.policy_hue_turn, c.policy_view_shift
         )
         self.view_changes.draw(np.arange(E), self.rng)
+        self.policy_sees_var = self._policy_sees_this_var()  # after a resume: the restored policy's view
         with torch.inference_mode():
-            images = self.policy.view_of(torch.from_numpy(obs["image"]))
-            self.next_policy_images = self.view_changes.apply(images, slice(None))
-            self.next_var = self._encode_images(obs["image"])
+            self.next_var, views = self._see(obs["image"])
+            self.next_policy_images = self.view_changes.apply(views, slice(None))
         self.next_state = torch.from_numpy(obs["state"]).float()
         self.next_start = torch.ones(E)
         self.intent = info["intent"].astype(np.int64)
@@ -490,9 +512,10 @@ class PPOTrainer:
         done_envs = np.flatnonzero(done)  # within the group; environment `group.start + i`
         n = len(done)
         ended = ended_view(obs, info, done)
-        # one VAR call: the reward images (final observations where an episode ended) and the reset images
+        # one VAR call: the reward images (final observations where an episode ended) and the reset images;
+        # the policy's view of the same images (ended.images are the next observations where none ended)
         tick = time.perf_counter()
-        embedded = self._encode_images(
+        embedded, viewed = self._see(
             np.concatenate([ended.images, obs["image"][done_envs]]) if len(done_envs) else ended.images
         )
         reward_embedding, reset_embedding = embedded[:n], embedded[n:]
@@ -508,8 +531,7 @@ class PPOTrainer:
         reward = self.normalise(group, raw, done)
         cut = np.flatnonzero(truncated & ~terminated) if c.bootstrap_truncated else []
         if len(cut):
-            final_images = self.policy.view_of(torch.from_numpy(ended.images[cut]))
-            final_images = self.view_changes.apply(final_images, cut + group.start)  # the ended episode's
+            final_images = self.view_changes.apply(viewed[cut], cut + group.start)  # the ended episode's
             envs = torch.from_numpy(cut + group.start)
             _, final_value, _ = self.policy.step(
                 final_images, reward_embedding[cut], torch.from_numpy(ended.state[cut]),
@@ -522,9 +544,10 @@ class PPOTrainer:
         if len(done_envs):
             next_var[done_envs] = reset_embedding
         self.next_var[group] = next_var
+        views = viewed[:n].clone()
+        views[done_envs] = viewed[n:]
         self.view_changes.draw(done_envs + group.start, self.rng)
-        images = self.policy.view_of(torch.from_numpy(obs["image"]))
-        self.next_policy_images[group] = self.view_changes.apply(images, group)
+        self.next_policy_images[group] = self.view_changes.apply(views, group)
         self.next_state[group] = torch.from_numpy(np.asarray(obs["state"], dtype=np.float32))
         self.next_start[group] = torch.from_numpy(done.astype(np.float32))
         self.heard[group] = np.asarray(info["heard"], dtype=np.int64)

@@ -61,14 +61,39 @@ def test_the_policy_reads_the_vars_hidden_layer_and_never_changes_its_copy(
         trainer.reset_envs()
         before = frozen_copy(trainer)
         buf, _ = trainer.collect_rollout()
+        with torch.no_grad():  # the update sees what the rollout acted on
+            goal = trainer.goal_source.features(trainer.policy, buf.goal)
+            mean, _, _ = trainer.policy.evaluate_sequences(
+                buf.images, buf.var_embedding, buf.state, goal, buf.initial_hidden, buf.episode_start
+            )
+            logprob = trainer.policy.distribution(mean).log_prob(buf.actions).sum(-1)
         trainer.update(buf)
     finally:
         trainer.close()
     assert buf.images.dtype == torch.float32 and buf.images.shape[2:] == (VARConfig().hidden,)
+    torch.testing.assert_close(logprob, buf.logprobs, atol=1e-4, rtol=0)
     after = frozen_copy(trainer)
     assert all(torch.equal(before[k], after[k]) for k in before)  # weights and batch-norm statistics
     with torch.no_grad():
         torch.testing.assert_close(trainer.policy.view_of(views), var.image_encoder.hidden(views))
+
+
+def test_one_pass_of_its_own_var_gives_the_reward_embedding_and_the_policys_view(
+    tmp_path: Path, goal_clips: ClipBank
+) -> None:
+    var_path = var_file(tmp_path, 0)
+    shared = started(tiny_config(policy_view="var"), tmp_path / "shared", var_path, goal_clips)
+    apart = started(tiny_config(policy_view="var"), tmp_path / "apart", var_path, goal_clips)
+    apart._policy_sees_this_var = lambda: False  # type: ignore[method-assign]
+    try:
+        shared.reset_envs()
+        apart.reset_envs()
+    finally:
+        shared.close()
+        apart.close()
+    assert shared.policy_sees_var and not apart.policy_sees_var
+    torch.testing.assert_close(shared.next_policy_images, apart.next_policy_images)
+    torch.testing.assert_close(shared.next_var, apart.next_var)
 
 
 def test_its_checkpoint_keeps_the_copy_it_was_trained_with_when_a_later_var_drives_the_run(
