@@ -78,7 +78,7 @@ class EpisodeTracker:
 @dataclass
 class Timings:
     env_s: float = 0.0  # handing actions to the workers and waiting for them to step
-    var_s: float = 0.0  # f_I on the new images (reward + next observation)
+    var_s: float = 0.0  # f_I on the new images (reward + next observation), and the policy's view of them
     policy_s: float = 0.0  # acting (policy forward + sampling) and preparing observations
     update_s: float = 0.0
     other_s: float = 0.0
