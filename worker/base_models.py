@@ -6,6 +6,7 @@ Looked up in order: `$VARBOT_BASE_MODELS_DIR/<world>/`, `data_dir()/base_models/
 figures that made them).
 """
 
+import hashlib
 import json
 import os
 import shutil
@@ -133,6 +134,15 @@ class BaseRecipe:
             f"{steps}-seed{self.seed}"
         )
 
+    @property
+    def policy_folder(self) -> str:
+        """The policy's folder inside the work folder: one per set of PPO settings, so a recipe that changes
+        only the policy's settings reuses the views and the VAR but never resumes another policy."""
+        if not self.ppo_settings:
+            return "policy"
+        settings = json.dumps(self.ppo_settings, sort_keys=True).encode()
+        return f"policy-{hashlib.sha256(settings).hexdigest()[:10]}"
+
 
 def build_base(
     recipe: BaseRecipe, out_root: Path, progress: bool = True, device: "str | torch.device" = "cpu"
@@ -172,7 +182,7 @@ def build_base(
         world=recipe.world, sounds=recipe.sounds, image_size=recipe.image_size,
         total_steps=recipe.policy_steps, seed=recipe.seed, room=recipe.room, **recipe.ppo_settings,
     )  # fmt: skip
-    policy_dir = work / "policy"
+    policy_dir = work / recipe.policy_folder
     with clock("policy_train_s"):
         summary = train_run(
             ppo, policy_dir, var_result.checkpoint, resume=True, progress=progress, device=device

@@ -78,11 +78,12 @@ def test_a_base_build_over_randomised_rooms_resumes_from_its_checkpoints(tmp_pat
     assert again["var_steps"] == first["var_steps"] == 3, "the VAR was not trained again"
     assert again["timings"]["collect_s"] < first["timings"]["collect_s"] * 1.5, "the views were reused"
     assert again["timings"]["policy_train_s"] > first["timings"]["policy_train_s"], "stage times add up"
-    updates = [json.loads(line)["update"] for line in (_work(recipe) / "policy" / "metrics.jsonl").open()]
+    policy_dir = _work(recipe) / recipe.policy_folder
+    updates = [json.loads(line)["update"] for line in (policy_dir / "metrics.jsonl").open()]
     assert updates == [1, 2], "one update of 24 steps, then the second run continued with update 2"
     assert again["recipe"]["room"] == "randomised" and again["room_ranges"]["camera_jitter_m"] > 0
     assert again["policy_config"]["room"] == "randomised", "the policy's worlds drew rooms from the ranges"
-    assert json.loads((_work(recipe) / "policy" / "config.json").read_text())["room"] == "randomised"
+    assert json.loads((policy_dir / "config.json").read_text())["room"] == "randomised"
     assert set(again["evaluation"]) == {"training", "unseen_room"}
     assert set(again["evaluation"]["unseen_room"]) >= {"unheard-easy", "unheard-real-voices"}
     for cell in (cell for cells in again["evaluation"].values() for cell in cells.values()):
@@ -186,3 +187,18 @@ def test_a_base_model_moves_to_the_fast_front_end_keeping_its_policy_and_image_e
     monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "refit"))
     again = CliRunner().invoke(app, [*refit[:6], "--out", str(tmp_path / "again")])
     assert again.exit_code == 2 and "already reads 'speech-embedding-fast' features" in again.output
+
+
+def test_a_recipe_that_changes_only_the_policy_settings_shares_views_and_var_but_not_the_policy() -> None:
+    from worker.base_models import BaseRecipe
+
+    shipped_like = BaseRecipe()
+    var_view = BaseRecipe(ppo_settings={"policy_view": "var", "goal_match": True})
+    same_again = BaseRecipe(ppo_settings={"goal_match": True, "policy_view": "var"})
+    assert var_view.name == shipped_like.name, "the views and the VAR are reused"
+    assert shipped_like.policy_folder == "policy", "a recipe of the PPO defaults keeps its folder"
+    assert var_view.policy_folder not in {
+        "policy",
+        BaseRecipe(ppo_settings={"goal_match": True}).policy_folder,
+    }
+    assert same_again.policy_folder == var_view.policy_folder
