@@ -73,6 +73,13 @@ def build_base(
     device: Annotated[
         str | None, typer.Option(help="where PPO runs: auto, cpu or cuda (default: VARBOT_DEVICE, else auto)")
     ] = None,
+    ppo: Annotated[
+        list[str] | None,
+        typer.Option(
+            help="a PPO setting other than its default, as NAME=VALUE (repeat; e.g. policy_view=var, "
+            "goal_match=true, reward_temperature=0.25; learning.rl.ppo.PPOConfig's fields)"
+        ),
+    ] = None,
 ) -> None:
     """Train the base VAR + policy for one simulated world with the project's own trainers and record how.
 
@@ -94,11 +101,38 @@ def build_base(
     recipe = BaseRecipe(
         world=world, sounds=sounds, front_end=front_end, room=room, views=views, image_size=image_size,
         var_epochs=var_epochs, var_max_steps=var_max_steps, policy_steps=policy_steps,
-        eval_episodes_per_intent=eval_episodes_per_intent, seed=seed,
+        eval_episodes_per_intent=eval_episodes_per_intent, seed=seed, ppo_settings=ppo_settings(ppo or []),
     )  # fmt: skip
     signal.signal(signal.SIGTERM, _exit_when_terminated)  # a stopped build still adds up its stage times
     record = build(recipe, out or data_dir() / "base_models", device=on)
     typer.echo(json.dumps(record, indent=2))
+
+
+def ppo_settings(pairs: list[str]) -> dict[str, object]:
+    """NAME=VALUE pairs as PPO settings: VALUE read as JSON where it is (numbers, true, null), else text."""
+    import json
+    from dataclasses import fields
+
+    from learning.rl.ppo import PPOConfig
+
+    known = {field.name for field in fields(PPOConfig)}
+    settings: dict[str, object] = {}
+    for pair in pairs:
+        name, equals, text = pair.partition("=")
+        if not equals or name not in known:
+            raise typer.BadParameter(
+                f"{pair!r} is not NAME=VALUE with NAME a PPO setting; they are: {', '.join(sorted(known))}",
+                param_hint="--ppo",
+            )
+        try:
+            settings[name] = json.loads(text)
+        except json.JSONDecodeError:
+            settings[name] = text
+    try:
+        PPOConfig(**settings).validate()
+    except (ValueError, TypeError) as refused:
+        raise typer.BadParameter(str(refused), param_hint="--ppo") from None
+    return settings
 
 
 def _exit_when_terminated(signum: int, frame: object) -> None:

@@ -202,3 +202,16 @@ def test_a_recipe_that_changes_only_the_policy_settings_shares_views_and_var_but
         BaseRecipe(ppo_settings={"goal_match": True}).policy_folder,
     }
     assert same_again.policy_folder == var_view.policy_folder
+
+
+def test_build_base_takes_ppo_settings_as_name_value_pairs_and_refuses_what_ppo_would() -> None:
+    import typer
+
+    from worker.cli import ppo_settings
+
+    settings = ppo_settings(["policy_view=var", "goal_match=true", "reward_temperature=0.25"])
+    assert settings == {"policy_view": "var", "goal_match": True, "reward_temperature": 0.25}
+    with pytest.raises(typer.BadParameter, match="not NAME=VALUE with NAME a PPO setting"):
+        ppo_settings(["policy_eyes=var"])
+    with pytest.raises(typer.BadParameter, match="sees the real view"):
+        ppo_settings(["policy_view=var", "policy_colour_jitter=0.3"])
