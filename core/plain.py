@@ -1,5 +1,6 @@
 """Plain data: the form JSON gives back."""
 
+import json
 from typing import Any
 
 
@@ -11,3 +12,15 @@ def as_lists(value: Any) -> Any:
     if isinstance(value, list | tuple):
         return [as_lists(item) for item in value]
     return value
+
+
+def name_value(text: str) -> tuple[str, Any]:
+    """NAME=VALUE as (NAME, VALUE), the value read as JSON where it is one (numbers, true, null, lists), else
+    kept as text; refuses text without a name and an "="."""
+    name, equals, value = text.partition("=")
+    if not equals or not name:
+        raise ValueError(f"{text!r}: write it as NAME=VALUE")
+    try:
+        return name, json.loads(value)
+    except json.JSONDecodeError:
+        return name, value

@@ -109,25 +109,25 @@ def build_base(
 
 
 def ppo_settings(pairs: list[str]) -> dict[str, object]:
-    """NAME=VALUE pairs as PPO settings: VALUE read as JSON where it is (numbers, true, null), else text."""
-    import json
+    """NAME=VALUE pairs as PPO settings (`core.plain.name_value`), checked as PPO checks its settings."""
     from dataclasses import fields
 
+    from core.plain import name_value
     from learning.rl.ppo import PPOConfig
 
     known = {field.name for field in fields(PPOConfig)}
     settings: dict[str, object] = {}
     for pair in pairs:
-        name, equals, text = pair.partition("=")
-        if not equals or name not in known:
+        try:
+            name, value = name_value(pair)
+        except ValueError:
+            name, value = "", None
+        if name not in known:
             raise typer.BadParameter(
                 f"{pair!r} is not NAME=VALUE with NAME a PPO setting; they are: {', '.join(sorted(known))}",
                 param_hint="--ppo",
             )
-        try:
-            settings[name] = json.loads(text)
-        except json.JSONDecodeError:
-            settings[name] = text
+        settings[name] = value
     try:
         PPOConfig(**settings).validate()
     except (ValueError, TypeError) as refused:

@@ -109,8 +109,9 @@ class VarView(nn.Module):
         from learning.var.model import VARConfig
 
         super().__init__()
-        self.encoder = VarImageEncoder(VARConfig.from_dict(var_fields)).requires_grad_(False).eval()
-        self.features = VARConfig.from_dict(var_fields).hidden
+        config = VARConfig.from_dict(var_fields)
+        self.encoder = VarImageEncoder(config).requires_grad_(False).eval()
+        self.features = config.hidden
 
     def train(self, mode: bool = True) -> "VarView":
         return self  # frozen: never back into training mode

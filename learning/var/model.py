@@ -164,6 +164,17 @@ class VAR(nn.Module):
 
     def encode_image(self, images: torch.Tensor) -> torch.Tensor:
         """uint8 (B, H, W, 3) camera images, channels last, as rendered → (B, d) unit vectors."""
+        self._check_image_shape(images)
+        return F.normalize(self.image_encoder(images), dim=1)
+
+    def encode_image_and_hidden(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """f_I(images) and the hidden layer it came from, in one pass (a policy that sees through this VAR
+        reads the hidden layer)."""
+        self._check_image_shape(images)
+        hidden = self.image_encoder.hidden(images)
+        return F.normalize(self.image_encoder.head[-1](hidden), dim=1), hidden
+
+    def _check_image_shape(self, images: torch.Tensor) -> None:
         size = self.config.image_size
         if images.ndim != 4 or tuple(images.shape[1:]) != (size, size, 3):
             raise ValueError(
@@ -172,14 +183,6 @@ class VAR(nn.Module):
             )
         if images.dtype != torch.uint8:
             raise ValueError(f"encode_image expects uint8 pixels (0..255), got {images.dtype}.")
-        return F.normalize(self.image_encoder(images), dim=1)
-
-    def encode_image_and_hidden(self, images: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """f_I(images) and the hidden layer it came from, in one pass (a policy that sees through this VAR
-        reads the hidden layer)."""
-        self.encode_image(images[:0])  # checks the shape and pixel type
-        hidden = self.image_encoder.hidden(images)
-        return F.normalize(self.image_encoder.head[-1](hidden), dim=1), hidden
 
     def encode_sound(self, features: torch.Tensor) -> torch.Tensor:
         """The front end's features (B, frames, values), e.g. MFCC (B, 100, 40) → (B, d) unit vectors.

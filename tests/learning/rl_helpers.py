@@ -3,6 +3,7 @@
 from learning.rl.ppo import PPOConfig
 
 IMAGE = 16
+WORDS = ["zero", "one", "two", "three"]  # the goal clips' commands, intent by intent
 
 
 def tiny_config(**overrides: object) -> PPOConfig:

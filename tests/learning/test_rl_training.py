@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-from rl_helpers import IMAGE, tiny_config
+from rl_helpers import IMAGE, WORDS, tiny_config
 
 from core.rooms import DomainShift, RoomRanges
 from learning.rl.baselines import method_config
@@ -21,27 +21,12 @@ from learning.rl.envs import make_env_fn, world_id
 from learning.rl.evaluate import deal, episode_schedule, evaluate
 from learning.rl.frozen_var import load_frozen_var
 from learning.rl.ppo import PPOConfig, PPOTrainer, Rollout, RolloutStep, load_policy
-from learning.rl.rewards import ClipBank, clip_bank_from_paths
+from learning.rl.rewards import ClipBank
 from learning.rl.stats import EpisodeStats
 from learning.var.checkpoint import save_var
 from learning.var.model import VAR, VARConfig
 
 pytestmark = [pytest.mark.slow, pytest.mark.speech]
-
-WORDS = ["zero", "one", "two", "three"]
-
-
-@pytest.fixture(scope="module")
-def goal_clips(tmp_path_factory: pytest.TempPathFactory) -> ClipBank:
-    """Real spoken commands: espeak-ng says each word in two voices; features from the project's front end."""
-    folder = tmp_path_factory.mktemp("clips")
-    specs = []
-    for intent, word in enumerate(WORDS):
-        for voice in ("en", "en-us"):
-            path = folder / f"{word}-{voice}.wav"
-            subprocess.run(["espeak-ng", "-v", voice, "-w", str(path), word], check=True)
-            specs.append(f"{intent}:{path}")
-    return clip_bank_from_paths(specs)
 
 
 @pytest.fixture(scope="module")

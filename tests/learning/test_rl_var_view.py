@@ -2,7 +2,6 @@
 up to its hidden layer instead of training a CNN of its own, keeps that copy through updates, checkpoints
 and a later VAR, and acts and is evaluated like any other policy."""
 
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -13,22 +12,11 @@ from learning.rl.checkpoints import load_initial_policy, load_policy
 from learning.rl.evaluate import evaluate
 from learning.rl.frozen_var import load_frozen_var
 from learning.rl.ppo import PPOConfig, PPOTrainer
-from learning.rl.rewards import ClipBank, clip_bank_from_paths
+from learning.rl.rewards import ClipBank
 from learning.var.checkpoint import save_var
 from learning.var.model import VAR, VARConfig
 
 pytestmark = [pytest.mark.slow, pytest.mark.speech]
-
-
-@pytest.fixture(scope="module")
-def goal_clips(tmp_path_factory: pytest.TempPathFactory) -> ClipBank:
-    folder = tmp_path_factory.mktemp("clips")
-    specs = []
-    for intent, word in enumerate(["zero", "one", "two", "three"]):
-        path = folder / f"{word}.wav"
-        subprocess.run(["espeak-ng", "-w", str(path), word], check=True)
-        specs.append(f"{intent}:{path}")
-    return clip_bank_from_paths(specs)
 
 
 def var_file(folder: Path, seed: int) -> Path:
