@@ -130,9 +130,20 @@ class BaseRecipe:
         """The work folder's name: one per recipe, so a rerun of the same recipe resumes it."""
         steps = f"{self.var_max_steps}steps" if self.var_max_steps else f"{self.var_epochs}ep"
         return (
-            f"{self.world}-{self.sounds}-{self.front_end}-{self.room}-{self.views}-{self.image_size}px-"
+            f"{self.world}-{self.sounds}-{self.front_end}-{self.room_label}-{self.views}-{self.image_size}px-"
             f"{steps}-seed{self.seed}"
         )
+
+    @property
+    def room_label(self) -> str:
+        """The room as the work folder and the views name it. Randomised rooms carry a digest of the ranges,
+        so a build after the ranges changed renders new views and trains a new VAR instead of resuming the
+        ones of the old ranges."""
+        room = world_room(self.room)
+        if not isinstance(room, RoomRanges):
+            return self.room
+        ranges = json.dumps(asdict(room), sort_keys=True).encode()
+        return f"{self.room}-{hashlib.sha256(ranges).hexdigest()[:8]}"
 
     @property
     def policy_folder(self) -> str:
@@ -166,7 +177,7 @@ def build_base(
     room = world_room(recipe.room)
     with clock("collect_s"):
         dataset = collect_dataset(
-            recipe.world, recipe.views, f"base-{recipe.world}-{recipe.room}-{recipe.views}-"
+            recipe.world, recipe.views, f"base-{recipe.world}-{recipe.room_label}-{recipe.views}-"
             f"{recipe.image_size}px-seed{recipe.seed}", seed=recipe.seed, image_size=recipe.image_size,
             domain=room, progress=progress,
         )  # fmt: skip

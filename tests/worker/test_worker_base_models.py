@@ -204,6 +204,20 @@ def test_a_recipe_that_changes_only_the_policy_settings_shares_views_and_var_but
     assert same_again.policy_folder == var_view.policy_folder
 
 
+def test_a_recipe_over_changed_room_ranges_renders_new_views_and_trains_a_new_var(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import worker.base_models
+    from core.rooms import RoomRanges
+    from worker.base_models import BaseRecipe
+
+    today = BaseRecipe().name
+    assert today == BaseRecipe().name, "the same ranges resume the same work folder"
+    assert BaseRecipe(room="training").room_label == "training"
+    monkeypatch.setattr(worker.base_models, "world_room", lambda _: RoomRanges(object_textures=(None,)))
+    assert BaseRecipe().name != today, "other ranges never resume the views or VAR of these"
+
+
 def test_build_base_takes_ppo_settings_as_name_value_pairs_and_refuses_what_ppo_would() -> None:
     import typer
 
