@@ -4,6 +4,7 @@ bench/results/rl_throughput.json.
     nice -n 10 .venv/bin/python bench/rl_throughput.py --env-groups 1,2   # Kuka, 96 px, 8 envs, 5 updates
     .venv/bin/python bench/rl_throughput.py --world turtlebot --image-size 64 --updates 3
     python bench/rl_throughput.py --device cuda --results rl_throughput_gpu.json  # on a GPU machine
+    .venv/bin/python bench/rl_throughput.py --env-groups 1 --policy-view var --results rl_throughput_var_view.json
 
 1. raw: `AsyncVectorEnv` of 8 worlds stepped with random actions (no learner at all), measured by
 bench/raw_stepping.py exactly as bench/env_speed.py measures it;
@@ -57,6 +58,7 @@ def trainer_speed(
     policy_image_size: int,
     env_groups: int,
     device: str,
+    policy_view: str = "pixels",
 ) -> dict:
     from learning.device import resolve_device
     from learning.rl.frozen_var import LoadedVar
@@ -73,6 +75,7 @@ def trainer_speed(
         policy_image_size=policy_image_size,
         num_envs=num_envs,
         env_groups=env_groups,
+        policy_view=policy_view,
         total_steps=(updates + 1) * num_envs * 100,
         checkpoint_every=10_000,
     )
@@ -129,6 +132,10 @@ def main() -> None:
     parser.add_argument(
         "--device", default="auto", help="where the trainer's VAR and policy run: auto, cpu or cuda"
     )
+    parser.add_argument(
+        "--policy-view", default="pixels", choices=("pixels", "var"),
+        help="what the policy sees: its own CNN over the view, or the VAR's hidden layer (one f_I pass)",
+    )  # fmt: skip
     parser.add_argument("--results", default="rl_throughput.json", help="file name in bench/results to write")
     args = parser.parse_args()
 
@@ -145,6 +152,7 @@ def main() -> None:
             args.policy_image_size,
             groups,
             args.device,
+            args.policy_view,
         )
     raw_after = raw_speed(args.world, args.envs, args.image_size, args.raw_steps)
     raw = (raw_before["steps_per_s"] + raw_after["steps_per_s"]) / 2
@@ -162,6 +170,7 @@ def main() -> None:
         "image_size": args.image_size,
         "policy_image_size": args.policy_image_size,
         "num_envs": args.envs,
+        "policy_view": args.policy_view,
         "device": args.device,
         "raw_env_steps_per_s": raw,
         "raw_cpu_ms_per_step": raw_cpu,
@@ -175,7 +184,8 @@ def main() -> None:
         **measured,
     }
     table = Table(
-        title=f"RL throughput: {args.world}, {args.image_size} px, {args.envs} envs, device {args.device}"
+        title=f"RL throughput: {args.world}, {args.image_size} px, {args.envs} envs, device {args.device}, "
+        f"policy sees {args.policy_view}"
     )
     table.add_column("measure")
     table.add_column("value", justify="right")
