@@ -277,6 +277,11 @@ class RunParams(BaseModel):
         description="share of the policy self-improvement's simulated environments that keep practising in "
         "the base model's rooms instead of the robot's own, so that it keeps what it knew there (0: none)",
     )
+    policy_view_follows_var: bool = Field(
+        default=False,
+        description="for a policy that sees through the VAR: during its self-improvement it sees through "
+        "the household's fine-tuned VAR instead of the copy of the base VAR it was trained with",
+    )
 
 
 class PresetPublic(RunParams):

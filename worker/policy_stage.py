@@ -64,6 +64,7 @@ def improvement_config(
     robot_env_context: str | None,
     replay_share: float = 0.0,
     base_ranges: "RoomRanges | None" = None,
+    view_follows_var: bool = False,
 ) -> "PPOConfig":
     """The parent's PPO settings, continued for `steps` in the household's room (or on its real robot) with
     the household's clips as goals, at a third of the base model's learning rate: a parent that is itself a
@@ -72,7 +73,9 @@ def improvement_config(
     In simulation `replay_share` of the environments keep practising in the base model's own rooms (for the
     shipped bases, a new room per episode from the training ranges), so that what the base learnt there is
     not lost to the household's one room. A base trained over "randomised" rooms replays `base_ranges`, the
-    ranges its record says it was trained over, when given: today's ranges may have grown since."""
+    ranges its record says it was trained over, when given: today's ranges may have grown since.
+    `view_follows_var`: a policy that sees through the VAR sees through the run's (the household's) VAR
+    instead of its own copy of the base VAR; a policy with its own CNN is unaffected."""
     from core.rooms import RANDOMISED_ROOMS, ranges_setting, room_setting
     from learning.rl.env_groups import IN_PROCESS
     from learning.rl.ppo import PPOConfig
@@ -99,6 +102,7 @@ def improvement_config(
         room=room_setting(room),
         replay_envs=replay_envs,
         replay_room=replay_room,
+        policy_view_follows_var=view_follows_var and base.policy_view == "var",
     )
 
 
@@ -115,14 +119,15 @@ def improve_policy(
     room: "DomainShift | None" = None,
     replay_share: float = 0.0,
     base_ranges: "RoomRanges | None" = None,
+    view_follows_var: bool = False,
 ) -> PolicyImproveResult:
     """PPO from `policy_checkpoint`; `on_update(fraction, point)` after each update (True: stop),
     `on_rollout_step` after each step of env 0 (`learning.rl.ppo.RolloutStep`: the live view). With
     `robot_env_context` (`learning.rl.env_groups.in_process_env`: a real robot), PPO runs on that one
     environment in this process instead of simulated worlds; simulated worlds are in `room`, the robot's own
     (None: the training room), but for `replay_share` of the environments, which practise in the base
-    model's rooms (`improvement_config`, with `base_ranges`). The VAR and the policy run where the
-    worker's VARBOT_DEVICE says (`learning.device.resolve_device`)."""
+    model's rooms (`improvement_config`, with `base_ranges` and `view_follows_var`). The VAR and the policy
+    run where the worker's VARBOT_DEVICE says (`learning.device.resolve_device`)."""
     from backend.settings import get_settings
     from learning.device import resolve_device
     from learning.rl.ppo import PPOConfig, read_policy_checkpoint
@@ -132,7 +137,9 @@ def improve_policy(
     base = PPOConfig.from_dict(read_policy_checkpoint(policy_checkpoint)["config"])
     if base.goal_encoder != "var":
         raise ValueError(f"{policy_checkpoint} was not trained with the VAR; it cannot improve itself")
-    config = improvement_config(base, steps, seed, room, robot_env_context, replay_share, base_ranges)
+    config = improvement_config(
+        base, steps, seed, room, robot_env_context, replay_share, base_ranges, view_follows_var
+    )
     updates_total = config.num_updates
 
     def hook(record: dict[str, Any]) -> bool:

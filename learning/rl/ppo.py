@@ -88,6 +88,9 @@ class PPOConfig:
     # "var": the policy sees through a frozen copy of the VAR's image encoder (its hidden layer), not through
     # a CNN of its own trained by PPO alone; experimental
     policy_view: PolicyView = "pixels"
+    # with policy_view "var" and an initial policy: its view becomes this run's VAR (a household's fine-tuned
+    # VAR) instead of the copy it was trained with
+    policy_view_follows_var: bool = False
     # each episode the policy sees its view in other colours (learning.rl.colours; 0: off); experimental
     policy_colour_jitter: float = 0.0
     policy_hue_turn: float = 0.0  # and turns its hues by up to ± this many degrees (learning.rl.colours)
@@ -153,6 +156,10 @@ class PPOConfig:
             raise ValueError(
                 "a policy that sees through the VAR needs the VAR (goal_encoder='var'), and sees the real "
                 "view: colour jitter, hue turns and view shifts change the pixels of its own CNN"
+            )
+        if self.policy_view_follows_var and self.policy_view != "var":
+            raise ValueError(
+                "policy_view_follows_var is for a policy that sees through the VAR (policy_view='var')"
             )
         if not 0 <= self.replay_envs < self.num_envs:
             raise ValueError(
@@ -323,12 +330,13 @@ class PPOTrainer:
         self.episodes = EpisodeTracker(self.stats, success_known=self.goals.has_intents)
         torch.manual_seed(c.seed)
         self.policy = Policy(self._policy_config())
-        if c.policy_view == "var":  # a new policy sees through this run's VAR; a loaded one keeps its own
-            self.policy.var_view.encoder.load_state_dict(self._var_model().image_encoder.state_dict())
         if c.init_encoders is not None:
             self.label_counts.update(load_encoders_into(self.policy, c.init_encoders))
         if self.init_policy is not None:
             load_initial_policy(self.policy, self.init_policy)
+        if c.policy_view == "var" and (self.init_policy is None or c.policy_view_follows_var):
+            # a new policy sees through this run's VAR; a loaded one keeps its own copy unless told to follow
+            self.policy.var_view.encoder.load_state_dict(self._var_model().image_encoder.state_dict())
         self.policy.to(self.device)
         self.optimizer = torch.optim.Adam(self.policy.parameters(), lr=c.learning_rate, eps=1e-5)
         self.goal_source = goal_source(c.goal_encoder, self.goals)

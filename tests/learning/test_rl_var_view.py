@@ -108,6 +108,31 @@ def test_its_checkpoint_keeps_the_copy_it_was_trained_with_when_a_later_var_driv
     load_initial_policy(later.policy, base.checkpoint_path)  # the same network: accepted
 
 
+def test_told_to_follow_the_run_s_var_a_loaded_policy_sees_through_the_household_s_var(
+    tmp_path: Path, goal_clips: ClipBank
+) -> None:
+    base = started(tiny_config(policy_view="var"), tmp_path / "base", var_file(tmp_path, 0), goal_clips)
+    base.close()
+    base.save_checkpoint()
+    household_var = var_file(tmp_path, 1)
+    follows = started(
+        tiny_config(policy_view="var", policy_view_follows_var=True), tmp_path / "follows", household_var,
+        goal_clips, init_policy=base.checkpoint_path,
+    )  # fmt: skip
+    try:
+        follows.reset_envs()
+    finally:
+        follows.close()
+    assert follows.policy_sees_var, "one f_I pass again: the policy's view is the run's VAR"
+    views = torch.randint(0, 256, (3, IMAGE, IMAGE, 3), dtype=torch.uint8)
+    with torch.no_grad():
+        wanted = load_frozen_var(household_var).model.image_encoder.hidden(views)
+        torch.testing.assert_close(follows.policy.view_of(views), wanted)
+    for name, value in base.policy.state_dict().items():  # everything after the view is the base policy's
+        if not name.startswith("var_view."):
+            assert torch.equal(follows.policy.state_dict()[name], value), name
+
+
 def test_it_is_evaluated_like_any_policy(tmp_path: Path, goal_clips: ClipBank) -> None:
     var_path = var_file(tmp_path, 0)
     trainer = started(tiny_config(policy_view="var"), tmp_path / "run", var_path, goal_clips)
@@ -128,3 +153,5 @@ def test_a_policy_that_sees_through_the_var_refuses_changes_of_its_pixels() -> N
         PPOConfig(policy_view="var", goal_encoder="learned", reward="sparse").validate()
     with pytest.raises(ValueError, match="'pixels' or 'var'"):
         PPOConfig(policy_view="eyes").validate()
+    with pytest.raises(ValueError, match="for a policy that sees through the VAR"):
+        PPOConfig(policy_view_follows_var=True).validate()

@@ -82,3 +82,12 @@ def test_a_base_model_versions_record_gives_the_ranges_it_was_trained_over() -> 
     assert shipped is not None and shipped.object_textures == (None, "noise")  # before stripes and speckle
     assert recorded_ranges({"base_model": {"room_ranges": None}}) is None  # trained in the training room
     assert recorded_ranges({"var_finetune": {}}) is None  # a household's version: its config keeps them
+
+
+def test_a_var_view_policy_asked_to_follow_the_households_var_and_a_cnn_is_unaffected() -> None:
+    var_view = PPOConfig(room="randomised", policy_view="var", goal_match=True)
+    assert improvement_config(var_view, 800, 0, None, None, view_follows_var=True).policy_view_follows_var
+    assert not improvement_config(var_view, 800, 0, None, None).policy_view_follows_var, "off unless asked"
+    pixels = improvement_config(PPOConfig(room="randomised"), 800, 0, None, None, view_follows_var=True)
+    assert not pixels.policy_view_follows_var
+    pixels.validate()
