@@ -86,12 +86,19 @@ class Answers:
     """What the simulated family said: answers (one per key press sequence a person makes: a pair's is / is
     not, or an attempt's yes, or no + what it shows) and the labels they gave."""
 
+    commands: int  # how many commands the household recorded
     pair_answers: int = 0
     attempt_answers: int = 0
     labels: Counter[str] = field(default_factory=Counter)  # verdict -> count
+    shown: set[int] = field(default_factory=set)  # commands some answer said a view shows
 
     def count(self, verdicts: list[str]) -> None:
         self.labels.update(verdicts)
+
+    def enough(self, triplets: int, target: int) -> bool:
+        """Labelling stops at `target` triplets once every command has an *is* answer: a household goes on
+        until each command has an example (without one, its success cannot be measured)."""
+        return triplets >= target and self.shown >= set(range(self.commands))
 
     def to_dict(self) -> dict[str, object]:
         total = sum(self.labels.values())
@@ -102,6 +109,7 @@ class Answers:
             "labels_is": self.labels["is"],
             "labels_is_not": self.labels["is_not"],
             "is_share": round(self.labels["is"] / total, 4) if total else None,
+            "commands_with_an_is_answer": len(self.shown),
         }
 
 
@@ -277,7 +285,7 @@ def answer_pairs(
     answers: Answers,
     show: Callable[[int], None],
 ) -> bool:
-    """Pairs from GET /labels/next until the labels give `target` triplets; the simulator plays each member:
+    """Pairs from GET /labels/next until `answers.enough` says so; the simulator plays each member:
     'is' when the clip names what is in view, else 'is not'. False when no pair was left to ask. `show` gets
     the triplet count now and then."""
     while True:
@@ -285,7 +293,7 @@ def answer_pairs(
         if answers.pair_answers % 25 == 0:
             triplets = triplet_stats(member, robot_id)["triplets"]
             show(triplets)
-            if triplets >= target:
+            if answers.enough(triplets, target):
                 return True
         pair = member.get("/api/v1/labels/next", params={"robot_id": robot_id}).json()
         if pair["snapshot"] is None:
@@ -297,6 +305,8 @@ def answer_pairs(
         if member.post("/api/v1/labels", json=body).status_code == 201:
             answers.pair_answers += 1
             answers.count([verdict])
+            if verdict == "is":
+                answers.shown.add(heard)
 
 
 def attempt_answer(offered: dict, names: list[str]) -> dict[str, str]:
@@ -314,10 +324,10 @@ def attempt_answer(offered: dict, names: list[str]) -> dict[str, str]:
 def answer_attempts(
     family: list[httpx.Client], robot_id: int, names: list[str], target: int, answers: Answers
 ) -> Counter[str]:
-    """Every unanswered attempt, in the "did it do what I said?" mode, until `target` triplets; what each
-    attempt showed (asked / other / nothing)."""
+    """Every unanswered attempt, in the "did it do what I said?" mode, until `answers.enough` says so; what
+    each attempt showed (asked / other / nothing)."""
     outcomes: Counter[str] = Counter()
-    while triplet_stats(family[0], robot_id)["triplets"] < target:
+    while not answers.enough(triplet_stats(family[0], robot_id)["triplets"], target):
         member = family[answers.attempt_answers % len(family)]
         offered = member.get("/api/v1/attempts/next", params={"robot_id": robot_id}).json()
         if offered["snapshot"] is None:
@@ -329,6 +339,9 @@ def answer_attempts(
         answers.attempt_answers += 1
         answers.count([label["verdict"] for label in stored.json()["labels"]])
         outcomes[attempt_outcome(body)] += 1
+        heard = offered["snapshot"]["meta"].get("sim_heard")
+        if heard is not None:  # the answer said which command the view shows
+            answers.shown.add(heard)
     return outcomes
 
 
@@ -374,8 +387,9 @@ def label(
     names: list[str],
     plan: Labelling,
 ) -> dict:
-    """Collects views and answers them as `plan.mode` says, until the labels give `plan.target` triplets."""
-    answers = Answers()
+    """Collects views and answers them as `plan.mode` says, until the labels give `plan.target` triplets and
+    every command has an *is* answer (or `plan.attempts` are used up)."""
+    answers = Answers(commands=len(names))
     outcomes: Counter[str] = Counter()
     views_before = len(snapshot_ids(family[0], robot_id))
     with Progress(console=console) as bar:
@@ -389,7 +403,7 @@ def label(
             answer_pairs(family, robot_id, intent_of_clip, plan.target, answers, show)
         asked = 0
         while plan.mode != "views" and asked < plan.attempts:
-            if triplet_stats(family[0], robot_id)["triplets"] >= plan.target:
+            if answers.enough(triplet_stats(family[0], robot_id)["triplets"], plan.target):
                 break
             count = min(plan.attempts_per_request, plan.attempts - asked)
             ask_for_attempts(family[0], robot_id, count, plan.random_share if plan.mode == "mixed" else 0.0)

@@ -4,7 +4,7 @@ bench/results/rl_throughput.json.
     nice -n 10 .venv/bin/python bench/rl_throughput.py --env-groups 1,2   # Kuka, 96 px, 8 envs, 5 updates
     .venv/bin/python bench/rl_throughput.py --world turtlebot --image-size 64 --updates 3
     python bench/rl_throughput.py --device cuda --results rl_throughput_gpu.json  # on a GPU machine
-    .venv/bin/python bench/rl_throughput.py --env-groups 1 --policy-view var --results rl_throughput_var_view.json
+    .venv/bin/python bench/rl_throughput.py --policy-view var --results rl_throughput_var_view.json
 
 1. raw: `AsyncVectorEnv` of 8 worlds stepped with random actions (no learner at all), measured by
 bench/raw_stepping.py exactly as bench/env_speed.py measures it;

@@ -64,6 +64,7 @@ def test_a_households_own_clips_in_a_held_out_room_with_mixed_labelling(
     assert labelled["labels"] == labelled["labels_is"] + labelled["labels_is_not"]
     assert labelled["answers"] == labelled["pair_answers"] + labelled["attempt_answers"]
     assert 0 <= labelled["is_share"] <= 1 and labelled["triplets"] >= 60
+    assert 0 <= labelled["commands_with_an_is_answer"] <= 4
     assert [row["command"] for row in result["per_command"]] == WORDS
 
 
@@ -93,6 +94,15 @@ def test_attempts_alone_and_views_alone_in_the_other_rooms(
                  "--room", "training", "--household", "viewing")  # fmt: skip
     assert views["labelling"]["attempt_answers"] == 0 and views["labelling"]["pair_answers"] >= 1
     assert views["labelling"]["views_collected"] == 20 and views["household"]["room"] == "training"
+
+
+def test_labelling_goes_on_past_the_triplet_target_until_every_command_has_an_is_answer() -> None:
+    answers = bench.Answers(commands=4)
+    answers.shown.update({0, 1, 3})
+    assert not answers.enough(triplets=1000, target=60), "no example of command 2 yet"
+    answers.shown.add(2)
+    assert answers.enough(1000, 60) and not answers.enough(59, 60)
+    assert answers.to_dict()["commands_with_an_is_answer"] == 4
 
 
 def test_a_run_that_does_not_end_in_time_says_where_to_look(
