@@ -99,7 +99,13 @@ class Answers:
     def enough(self, triplets: int, target: int) -> bool:
         """Labelling stops at `target` triplets once every command has an *is* answer: a household goes on
         until each command has an example (without one, its success cannot be measured)."""
-        return triplets >= target and self.shown >= set(range(self.commands))
+        return triplets >= target and len(self.commands_shown) == self.commands
+
+    @property
+    def commands_shown(self) -> set[int]:
+        """The household's commands with an *is* answer (a view of an intent it recorded no command for
+        does not count)."""
+        return self.shown & set(range(self.commands))
 
     def to_dict(self) -> dict[str, object]:
         total = sum(self.labels.values())
@@ -110,7 +116,7 @@ class Answers:
             "labels_is": self.labels["is"],
             "labels_is_not": self.labels["is_not"],
             "is_share": round(self.labels["is"] / total, 4) if total else None,
-            "commands_with_an_is_answer": len(self.shown),
+            "commands_with_an_is_answer": len(self.commands_shown),
         }
 
 
