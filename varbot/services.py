@@ -97,6 +97,17 @@ def varbot_argv(*args: str) -> list[str]:
     return [sys.executable, "-m", "varbot.cli", *args]
 
 
+def exit_on_sigterm() -> None:
+    """From now on a SIGTERM to this process exits it through its `finally` blocks (as Ctrl-C would), so
+    a launcher stops the services it started. Killed outright instead, its Celery workers would only get
+    their parent-death SIGTERM: a warm shutdown that lets a training task run on to its end."""
+
+    def exit_now(signum: int, _frame: object) -> None:
+        sys.exit(f"stopped by signal {signum}")
+
+    signal.signal(signal.SIGTERM, exit_now)
+
+
 def _die_with_parent() -> None:
     """In the child before exec (Linux): SIGTERM when the launcher itself dies, even by SIGKILL."""
     try:

@@ -1,17 +1,25 @@
 """bench/household.py on a tiny world (16 px VAR, a one-update policy) through the real API, Redis and Celery
 workers: a household's own WAV folder becomes its members and recordings, the robot sits in the room asked
 for, each labelling mode collects and answers its views, a fine-tune runs, and every figure lands in the
-JSON. And a badly named clip folder says what is wrong."""
+JSON. A SIGTERM mid fine-tune stops the bench and every process it started. And a badly named clip folder
+says what is wrong."""
 
+import contextlib
 import json
+import os
+import signal
+import subprocess
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import household as bench
+import psutil
 import pytest
 from result_files import relative_paths
 
+from varbot.services import wait_until
 from varbot.simulated_household import TINY, WORDS, install_tiny_base_model, spoken_commands
 
 TINY_PARAMS = [f"--run-param={key}={json.dumps(value)}" for key, value in TINY.items()]
@@ -114,6 +122,48 @@ def test_a_run_that_does_not_end_in_time_says_where_to_look(
     ):
         _run(stack, folders[0], tmp_path / "late.json", *options)
     assert not (tmp_path / "late.json").exists(), "no result is written for a run that did not end"
+
+
+def test_a_sigterm_mid_fine_tune_stops_the_bench_and_every_process_it_started(
+    folders: tuple[Path, Path], tmp_path: Path
+) -> None:
+    clips, base_models = folders
+    still_training = "--run-param=policy_steps=5000000"  # after TINY's, so it wins
+    options = ["--clips", str(clips), "--triplets", "60", "--preset", "quick", *TINY_PARAMS, still_training]
+    options += ["--base-models", str(base_models), "--out", str(tmp_path / "never.json")]
+    launched = subprocess.Popen(
+        [sys.executable, "bench/household.py", *options],
+        cwd=Path(__file__).resolve().parents[2],
+        env={**os.environ, "TMPDIR": str(tmp_path)},  # where the bench makes its stack's folder
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    try:
+        wait_until(
+            lambda: _policy_training(launched.pid) or launched.poll() is not None,
+            240,
+            "the fine-tune's policy stage (its environment workers)",
+        )
+        assert launched.poll() is None, launched.stderr.read().decode()
+        started = psutil.Process(launched.pid).children(recursive=True)
+        assert any(p.cmdline()[-2:] == ["--queue", "training"] for p in started)
+        launched.send_signal(signal.SIGTERM)
+        assert launched.wait(60) != 0
+        _, alive = psutil.wait_procs(started, timeout=30)
+        assert not alive, f"still running after the bench stopped: {[p.cmdline() for p in alive]}"
+        assert "stopped by signal 15" in launched.stderr.read().decode()
+    finally:
+        launched.kill()
+
+
+def _policy_training(bench_pid: int) -> bool:
+    """The training worker's environment workers run (forkserver children, the policy stage)."""
+    with contextlib.suppress(psutil.Error):
+        return any(
+            "multiprocessing.forkserver" in " ".join(p.cmdline())
+            for p in psutil.Process(bench_pid).children(True)
+        )
+    return False
 
 
 @pytest.mark.parametrize(
