@@ -585,7 +585,7 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
         "labelling": {**labelled, "wall_s": round(labelling_s, 1)},
         "run": {"id": run["id"], "status": run["status"], "error": run["error"], "preset": args.preset,
                 "params": run["params"], "stages_s": run["timings"].get("stages_s"),
-                "gate": run["metrics"].get("gate")},
+                "gate": run["metrics"].get("gate"), "policy_training": policy_training(run)},
         "success_before": before.get("sim_success"),
         "success_after": after.get("sim_success"),
         "episodes": after.get("sim_episodes"),
@@ -595,6 +595,13 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
         "held_out_triplets": after.get("held_out_triplets"),
         "other_rooms": checks,
     }  # fmt: skip
+
+
+def policy_training(run: dict) -> dict:
+    """How the fine-tune's policy fared while it trained: its recent success at the end, over all its
+    environments and apart in the household's room and in the base model's rooms it replayed."""
+    stage = run["metrics"].get("stages", {}).get("policy_improve", {})
+    return {key: stage.get(key) for key in ("env_steps", "recent_success", "recent_success_by_room")}
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -693,6 +700,14 @@ def print_result(result: dict, out: Path) -> None:
     table.add_row("share of labels that are 'is'", "", _pct(labelled["is_share"]))
     table.add_row(
         "share of triplets with a spoken positive", "", _pct(labelled["spoken_positive_triplet_share"])
+    )
+    training = result["run"]["policy_training"]
+    by_room = training["recent_success_by_room"] or {}
+    table.add_row(
+        "policy's training success at the end (household's room / replayed rooms)",
+        "",
+        f"{_pct(training['recent_success'])} ({_pct(by_room.get('own_room'))} / "
+        f"{_pct(by_room.get('replay_room'))})",
     )
     for stage, seconds in (result["run"]["stages_s"] or {}).items():
         table.add_row(f"wall time: {stage}", "", f"{seconds:.0f} s")

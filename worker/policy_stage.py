@@ -27,6 +27,7 @@ class PolicyImproveResult:
     env_steps: int
     updates: int
     recent_success: float | None
+    recent_success_by_room: dict[str, float | None]  # own_room / replay_room; empty without replay
     summary: dict[str, Any]
 
 
@@ -173,6 +174,7 @@ def improve_policy(
         env_steps=int(summary["env_steps"]),
         updates=int(summary["updates"]),
         recent_success=_number(summary.get("recent_success")),
+        recent_success_by_room={k: _number(v) for k, v in summary.get("recent_success_by_room", {}).items()},
         summary=summary,
     )
 

@@ -86,6 +86,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
         "env_steps": result.env_steps,
         "updates": result.updates,
         "recent_success": result.recent_success,
+        "recent_success_by_room": result.recent_success_by_room,
         "time_shares": result.summary.get("time_shares"),
     }
 

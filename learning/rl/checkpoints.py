@@ -137,8 +137,10 @@ def restore_run(trainer: "PPOTrainer", path: Path) -> None:
     trainer.normalise.rms.load(payload["return_rms"])
     trainer.rng.bit_generator.state = payload["numpy_rng"]
     trainer.torch_rng.set_state(payload["torch_rng"])
-    for key, values in payload["stats"].items():
-        getattr(trainer.stats, key).extend(values)
+    stats = payload["stats"]
+    for key in vars(trainer.stats):
+        # a checkpoint from before the replay split: its recent episodes count as the run's own room's
+        getattr(trainer.stats, key).extend(stats.get(key, [False] * len(stats["successes"])))
     trainer.timings = Timings(**payload["timings"])
     trainer.memory = PeakMemory(payload["peak_memory_bytes"])
     trainer.label_counts = payload.get("label_counts", trainer.label_counts)

@@ -57,11 +57,15 @@ class _InProcessVectorEnv(SyncVectorEnv):
         return self.step(self._pending_actions)
 
 
+def replay_env_indices(num_envs: int, replay_envs: int) -> frozenset[int]:
+    """Which environments practise in the replay room: `replay_envs` of them spread evenly over the
+    environments (so over the groups too), never environment 0, the one the scene follows."""
+    return frozenset(num_envs - 1 - (i * num_envs) // replay_envs for i in range(replay_envs))
+
+
 def env_rooms(num_envs: int, room: Any, replay_envs: int = 0, replay_room: Any = None) -> list[Any]:
-    """Each environment's room: `room`, but for `replay_envs` of them spread evenly over the environments
-    (so over the groups too), which practise in `replay_room`. Environment 0, the one the scene follows,
-    is always in `room`."""
-    replays = {num_envs - 1 - (i * num_envs) // replay_envs for i in range(replay_envs)}
+    """Each environment's room: `room`, but `replay_room` for the replay environments."""
+    replays = replay_env_indices(num_envs, replay_envs)
     return [replay_room if i in replays else room for i in range(num_envs)]
 
 

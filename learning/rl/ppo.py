@@ -46,7 +46,7 @@ from learning.rl.checkpoints import (  # the F401 ones: callers reach them throu
     write_run_checkpoint,
 )
 from learning.rl.curriculum import Curriculum
-from learning.rl.env_groups import EnvGroups, ended_view, env_rooms
+from learning.rl.env_groups import EnvGroups, ended_view, env_rooms, replay_env_indices
 from learning.rl.frozen_var import LoadedVar, VarOnDevice
 from learning.rl.goals import EpisodeGoals, goal_source
 from learning.rl.normalize import ReturnNormalizer
@@ -327,7 +327,9 @@ class PPOTrainer:
         self.curriculum = Curriculum(
             c.hard_target_share, c.target_intents, self.num_intents, self.goals.has_intents
         )
-        self.episodes = EpisodeTracker(self.stats, success_known=self.goals.has_intents)
+        self.episodes = EpisodeTracker(
+            self.stats, self.goals.has_intents, replay_env_indices(c.num_envs, c.replay_envs)
+        )
         torch.manual_seed(c.seed)
         self.policy = Policy(self._policy_config())
         if c.init_encoders is not None:
@@ -698,6 +700,7 @@ class PPOTrainer:
             "success": mean_or_nan([e["success"] for e in finished]),
             "recent_success": mean_or_nan(list(self.stats.successes)),
             "recent_success_by_intent": self.stats.success_by_intent(self.num_intents),
+            **self.success_by_room(),
             "intent_weights": self.curriculum.weights,
             "time": {k: round(v - getattr(before, k), 4) for k, v in asdict(self.timings).items()},
             "peak_memory_mb": self.memory.peak_mb,
@@ -709,11 +712,16 @@ class PPOTrainer:
             "updates": self.update_index,
             "env_steps": self.global_step,
             "recent_success": mean_or_nan(list(self.stats.successes)),
+            **self.success_by_room(),
             "time_shares": self.timings.shares(),
             "time_s": asdict(self.timings),
             "peak_memory_mb": self.memory.peak_mb,
             "labels": self.labels_used(),
         }
+
+    def success_by_room(self) -> dict[str, dict[str, float]]:
+        """With replay environments: recent success in the run's own room and in the replay room apart."""
+        return {"recent_success_by_room": self.stats.success_by_room()} if self.config.replay_envs else {}
 
     def labels_used(self) -> dict[str, int]:
         """The paper's accounting: a VAR triplet is 2 labels; each extrinsic-reward step is a simulator query;

@@ -23,6 +23,7 @@ class EpisodeStats:
     lengths: deque = field(default_factory=lambda: deque(maxlen=100))
     successes: deque = field(default_factory=lambda: deque(maxlen=100))
     intents: deque = field(default_factory=lambda: deque(maxlen=100))  # -1: unknown (older checkpoints)
+    replayed: deque = field(default_factory=lambda: deque(maxlen=100))  # ran in a replay environment
 
     @classmethod
     def over_last(cls, episodes: int) -> "EpisodeStats":
@@ -33,6 +34,14 @@ class EpisodeStats:
         pairs = list(zip(self.intents, self.successes, strict=True))
         return [mean_or_nan([s for i, s in pairs if i == intent]) for intent in range(num_intents)]
 
+    def success_by_room(self) -> dict[str, float]:
+        """Recent success in the run's own room and in the replay room (NaN where none ended lately)."""
+        pairs = list(zip(self.replayed, self.successes, strict=True))
+        return {
+            "own_room": mean_or_nan([s for replayed, s in pairs if not replayed]),
+            "replay_room": mean_or_nan([s for replayed, s in pairs if replayed]),
+        }
+
     def return_by_intent(self, num_intents: int) -> list[float]:
         """Recent mean episode return of each intent (NaN for an intent with none in the window)."""
         pairs = list(zip(self.intents, self.returns, strict=True))
@@ -42,9 +51,12 @@ class EpisodeStats:
 class EpisodeTracker:
     """Sums each environment's episode as it runs; a finished episode goes into `stats`."""
 
-    def __init__(self, stats: EpisodeStats, success_known: bool) -> None:
+    def __init__(
+        self, stats: EpisodeStats, success_known: bool, replay_envs: frozenset[int] = frozenset()
+    ) -> None:
         self.stats = stats
         self.success_known = success_known  # goals with intents: success means something
+        self.replay_envs = replay_envs
         self.reset(0)
 
     def reset(self, num_envs: int) -> None:
@@ -70,6 +82,7 @@ class EpisodeTracker:
             self.stats.lengths.append(episode["length"])
             self.stats.successes.append(ok)
             self.stats.intents.append(int(intent[e]))
+            self.stats.replayed.append(int(e) in self.replay_envs)
         self.episode_return[group][done] = 0.0
         self.episode_length[group][done] = 0
         return finished

@@ -52,6 +52,8 @@ def _run(stack: bench.Stack, clips: Path, out: Path, *options: str) -> dict:
     assert result["run"]["status"] == "succeeded", result["run"]["error"]
     assert result["run"]["gate"]["verdict"] in {"better", "no_change", "worse"}
     assert result["load_average"]["before"] and result["machine"]["cpu_cores"]
+    training = result["run"]["policy_training"]
+    assert training["env_steps"] > 0 and training["recent_success_by_room"] is not None
     return result
 
 

@@ -22,7 +22,7 @@ from learning.rl.evaluate import deal, episode_schedule, evaluate
 from learning.rl.frozen_var import load_frozen_var
 from learning.rl.ppo import PPOConfig, PPOTrainer, Rollout, RolloutStep, load_policy
 from learning.rl.rewards import ClipBank
-from learning.rl.stats import EpisodeStats
+from learning.rl.stats import EpisodeStats, EpisodeTracker
 from learning.var.checkpoint import save_var
 from learning.var.model import VAR, VARConfig
 
@@ -360,6 +360,39 @@ def test_recent_success_is_also_reported_per_intent() -> None:
         stats.successes.append(success)
     # intent 2's only episode had no known goal (NaN); -1 marks episodes from before intents were logged
     np.testing.assert_equal(stats.success_by_intent(4), [0.0, 0.5, float("nan"), 1.0])
+
+
+def test_recent_success_in_the_replay_environments_is_reported_apart_from_the_runs_own_room() -> None:
+    stats = EpisodeStats()
+    tracker = EpisodeTracker(stats, success_known=True, replay_envs=frozenset({3}))
+    tracker.reset(4)
+    ended = np.array([True, True, False, True])
+    tracker.step(slice(0, 4), np.zeros(4), ended, np.array([1.0, 1.0, 0.0, 0.0]), np.zeros(4, dtype=int))
+    assert list(stats.replayed) == [False, False, True]
+    assert stats.success_by_room() == {"own_room": 1.0, "replay_room": 0.0}
+
+
+def test_a_checkpoint_from_before_the_replay_split_resumes_its_episodes_as_the_runs_own_rooms(
+    tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
+) -> None:
+    config = tiny_config(total_steps=2 * 48, num_envs=4, max_episode_steps=3, reward="var")
+    first = make(config, tmp_path / "first", var_checkpoint, goal_clips)
+    try:
+        first.train(progress=False)
+    finally:
+        first.close()
+    older = torch.load(tmp_path / "first" / "checkpoint_000001.pt", map_location="cpu", weights_only=False)
+    del older["stats"]["replayed"]
+    (tmp_path / "resumed").mkdir()
+    torch.save(older, tmp_path / "resumed" / "checkpoint.pt")
+    resumed = make(config, tmp_path / "resumed", var_checkpoint, goal_clips)
+    try:
+        resumed.load_checkpoint()
+        assert len(resumed.stats.successes) > 0
+        assert list(resumed.stats.replayed) == [False] * len(resumed.stats.successes)
+        resumed.train(progress=False)
+    finally:
+        resumed.close()
 
 
 def test_the_curriculum_favours_targets_whose_recent_return_is_low() -> None:
