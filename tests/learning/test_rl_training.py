@@ -43,6 +43,16 @@ def make(config: PPOConfig, run_dir: Path, var_path: Path, clips: ClipBank) -> P
     return trainer
 
 
+def train_through(config: PPOConfig, run_dir: Path, var_path: Path, clips: ClipBank) -> PPOTrainer:
+    """A run trained to its end and closed (its policy and stats stay readable)."""
+    trainer = make(config, run_dir, var_path, clips)
+    try:
+        trainer.train(progress=False)
+    finally:
+        trainer.close()
+    return trainer
+
+
 def test_update_recomputes_the_rollout_log_probabilities_across_episode_ends(
     tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
 ) -> None:
@@ -76,11 +86,7 @@ def test_resuming_from_a_checkpoint_gives_identical_next_updates(
         goal_match=True,
         hard_target_share=0.5,
     )
-    straight = make(config, tmp_path / "straight", var_checkpoint, goal_clips)
-    try:
-        straight.train(progress=False)
-    finally:
-        straight.close()
+    straight = train_through(config, tmp_path / "straight", var_checkpoint, goal_clips)
     saved = torch.load(tmp_path / "straight" / "checkpoint_000001.pt", map_location="cpu", weights_only=False)
     assert saved["format_version"] == FORMAT_VERSION
     resumed_dir = tmp_path / "resumed"
@@ -376,11 +382,7 @@ def test_a_checkpoint_from_before_the_replay_split_resumes_its_episodes_as_the_r
     tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
 ) -> None:
     config = tiny_config(total_steps=2 * 48, num_envs=4, max_episode_steps=3, reward="var")
-    first = make(config, tmp_path / "first", var_checkpoint, goal_clips)
-    try:
-        first.train(progress=False)
-    finally:
-        first.close()
+    train_through(config, tmp_path / "first", var_checkpoint, goal_clips)
     older = torch.load(tmp_path / "first" / "checkpoint_000001.pt", map_location="cpu", weights_only=False)
     del older["stats"]["replayed"]
     (tmp_path / "resumed").mkdir()
