@@ -278,9 +278,10 @@ class RunParams(BaseModel):
         "the base model's rooms instead of the robot's own, so that it keeps what it knew there (0: none)",
     )
     policy_view_follows_var: bool = Field(
-        default=False,
+        default=True,
         description="for a policy that sees through the VAR: during its self-improvement it sees through "
-        "the household's fine-tuned VAR instead of the copy of the base VAR it was trained with",
+        "the household's fine-tuned VAR (default) instead of the copy of the base VAR it was trained with "
+        "(false); a policy with its own image encoder is unaffected",
     )
 
 

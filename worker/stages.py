@@ -77,7 +77,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
             context.room,
             float(context.params.get("policy_replay_share", DEFAULT_POLICY_REPLAY_SHARE)),
             context.parent_base_ranges,
-            bool(context.params.get("policy_view_follows_var", False)),
+            bool(context.params.get("policy_view_follows_var", True)),
         )
     compact = context.folder / "policy" / "final.pt"
     _compact_policy(result.checkpoint, compact)

@@ -4,6 +4,7 @@ model was trained in."""
 import json
 from dataclasses import asdict
 
+from backend.services.runs import resolve_params
 from core.rooms import ROOM_PRESETS, DomainShift, RoomRanges, room_setting, world_room
 from learning.rl.ppo import PPOConfig
 from worker.base_models import SHIPPED_DIR, BaseModel
@@ -84,10 +85,12 @@ def test_a_base_model_versions_record_gives_the_ranges_it_was_trained_over() -> 
     assert recorded_ranges({"var_finetune": {}}) is None  # a household's version: its config keeps them
 
 
-def test_a_var_view_policy_asked_to_follow_the_households_var_and_a_cnn_is_unaffected() -> None:
+def test_a_var_view_policy_follows_the_households_var_unless_told_not_to_and_a_cnn_is_unaffected() -> None:
     var_view = PPOConfig(room="randomised", policy_view="var", goal_match=True)
-    assert improvement_config(var_view, 800, 0, None, None, view_follows_var=True).policy_view_follows_var
-    assert not improvement_config(var_view, 800, 0, None, None).policy_view_follows_var, "off unless asked"
-    pixels = improvement_config(PPOConfig(room="randomised"), 800, 0, None, None, view_follows_var=True)
+    assert improvement_config(var_view, 800, 0, None, None).policy_view_follows_var, "on by default"
+    frozen = improvement_config(var_view, 800, 0, None, None, view_follows_var=False)
+    assert not frozen.policy_view_follows_var
+    assert resolve_params("standard", {}).policy_view_follows_var, "and so is the run parameter"
+    pixels = improvement_config(PPOConfig(room="randomised"), 800, 0, None, None)
     assert not pixels.policy_view_follows_var
     pixels.validate()
