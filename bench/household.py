@@ -360,10 +360,11 @@ def attempt_outcome(answer: dict[str, str]) -> str:
     return "nothing" if answer["instead"] == "nothing" else "other"
 
 
-def ask_for_attempts(admin: httpx.Client, robot_id: int, count: int, random_share: float) -> dict:
-    response = admin.post(
-        f"/api/v1/robots/{robot_id}/attempts", json={"count": count, "random_share": random_share}
-    )
+def ask_for_attempts(
+    admin: httpx.Client, robot_id: int, count: int, random_share: float, seed: int | None = None
+) -> dict:
+    body = {"count": count, "random_share": random_share, "seed": seed}
+    response = admin.post(f"/api/v1/robots/{robot_id}/attempts", json=body)
     if response.status_code != 202:
         raise BenchError(f"attempts were refused: {response.text}")
     task_id = response.json()["task_id"]
@@ -386,6 +387,7 @@ class Labelling:
     attempts: int  # the most attempts to ask for, over all requests
     attempts_per_request: int
     random_share: float
+    seed: int | None = None  # of the attempts: the n-th request asks with seed + the attempts asked before
 
 
 def label(
@@ -414,7 +416,9 @@ def label(
             if answers.enough(triplet_stats(family[0], robot_id)["triplets"], plan.target):
                 break
             count = min(plan.attempts_per_request, plan.attempts - asked)
-            ask_for_attempts(family[0], robot_id, count, plan.random_share if plan.mode == "mixed" else 0.0)
+            share = plan.random_share if plan.mode == "mixed" else 0.0
+            seed = None if plan.seed is None else plan.seed + asked
+            ask_for_attempts(family[0], robot_id, count, share, seed)
             asked += count
             outcomes += answer_attempts(family, robot_id, names, plan.target, answers)
             if plan.mode == "mixed":
@@ -568,7 +572,7 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
         raise BenchError(f"the robot was refused: {response.text}")
     robot_id = response.json()["id"]
     plan = Labelling(args.labelling, args.triplets, args.views, args.attempts, args.attempts_per_request,
-                     args.random_share)  # fmt: skip
+                     args.random_share, args.attempt_seed)  # fmt: skip
     labelling_started = time.perf_counter()
     labelled = label(members, robot_id, intent_of_clip, names, plan)
     labelling_s = time.perf_counter() - labelling_started
@@ -622,6 +626,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--attempts-per-request", type=int, default=20)
     parser.add_argument(
         "--random-share", type=float, default=0.25, help="mixed: random views beside attempts"
+    )
+    parser.add_argument(
+        "--attempt-seed",
+        type=int,
+        default=None,
+        help="attempts / mixed: seed the robot's attempts and random views, so that two benches with the "
+        "same base model label the same views (default: fresh ones, as a household gets)",
     )
     parser.add_argument("--members", type=int, default=3, help="synthesised voices: speakers")
     parser.add_argument("--clips-per-command", type=int, default=2, help="synthesised voices: per member")

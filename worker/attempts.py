@@ -8,7 +8,6 @@ Every episode runs its full length (success rule "final"): no simulator ground t
 views; `meta["sim_heard"]` is kept for scoring only, as capture does."""
 
 import contextlib
-import secrets
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,12 +33,12 @@ from core.paths import data_subdir
 from core.robots import world_of_kind
 from core.rooms import room_of
 from worker.base_models import BaseModelMissing, find_base
-from worker.capture import capture_views, png
+from worker.capture import capture_views, fresh_seed, png
 from worker.run_context import materialise
 
 REPLAY_FRAMES = 6  # frames of the replay, the final view last, spread over the attempt's second half
 MakeEnv = Callable[[int, int | None], Any]  # (image_size, max_steps) -> the robot's Gymnasium env
-Capture = Callable[[int, int, int, str | None], dict]  # (robot_id, household_id, count, task_id) -> result
+Capture = Callable[[int, int, int, str | None, int | None], dict]  # (robot, household, count, task, seed)
 
 
 class AttemptRefused(ValueError):
@@ -69,9 +68,13 @@ def try_commands(
     task_id: str | None = None,
     make_env: MakeEnv | None = None,
     capture: Capture = capture_views,
+    seed: int | None = None,
 ) -> dict[str, Any]:
     """`attempts` attempts spread evenly over the command keys `commands` (none: every command, those with no
     *is* answer yet favoured, `attempt_cycle`), then `random_views` random views.
+    `seed` (default: a fresh one) decides which clip each attempt plays, where each starts and the random
+    views: with the same model, commands and answers so far, the same attempts come back (a bench compares
+    two fine-tunes on the same labels that way).
     Raises AttemptRefused for a robot with no model, a household with no recordings, a command with none.
     A simulated robot plays in its world; a real one (`worker.real_arm`) passes its `make_env` and
     `capture`."""
@@ -92,7 +95,8 @@ def try_commands(
         var = load_var(model.var_path).eval()
         commands_once = list(dict.fromkeys(asked))
         goals = _goal_embeddings(session, blobs, commands_once, var, front_end_of(model.var_path), world)
-        rng = np.random.default_rng(secrets.randbits(31))
+        seed = fresh_seed() if seed is None else seed
+        rng = np.random.default_rng(seed)
         created = []
         report("running", f"trying {attempts} times: {', '.join(c.name for c in commands_once)}", 0)
         with policy_player(model.policy_path, var, world, room_of(robot.settings or {}), make_env) as play:
@@ -103,7 +107,7 @@ def try_commands(
                 created.append(_store(session, blobs, robot, command, clip_id, attempt, model, task_id).id)
                 report("running", f"{len(created)} of {attempts} attempts stored", len(created))
     if random_views:
-        capture(robot_id, household_id, random_views, task_id)
+        capture(robot_id, household_id, random_views, task_id, seed + 1)
     report(
         "done", f"{len(created)} attempts and {random_views} random views are ready to label", len(created)
     )

@@ -17,7 +17,16 @@ from core.rooms import room_of
 from worker.base_models import BaseModelMissing, find_base
 
 
-def capture_views(robot_id: int, household_id: int, count: int, task_id: str | None = None) -> dict:
+def fresh_seed() -> int:
+    """A seed no earlier request used (likely): a household that asks again gets new views."""
+    return secrets.randbits(31)
+
+
+def capture_views(
+    robot_id: int, household_id: int, count: int, task_id: str | None = None, seed: int | None = None
+) -> dict:
+    """`count` random views of the simulated robot's world in its room, each stored as a snapshot; `seed`
+    (default: a fresh one) decides them, given the robot's settings."""
     from sim.explore import random_views
 
     blobs = get_blob_store()
@@ -30,7 +39,7 @@ def capture_views(robot_id: int, household_id: int, count: int, task_id: str | N
         world = world_of_kind(robot.kind)
         settings = robot.settings or {}
         image_size = int(settings.get("image_size") or _base_image_size(world))
-        seed = secrets.randbits(31)
+        seed = fresh_seed() if seed is None else seed
         created = []
         for index, (image, heard, state) in enumerate(
             random_views(world, count, seed=seed, image_size=image_size, domain=room_of(settings))

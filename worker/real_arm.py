@@ -16,7 +16,6 @@ The worker that serves the robot queue must reach the arm's IP and have the came
 """
 
 import os
-import secrets
 from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -33,7 +32,7 @@ from core.robots import RobotKind, world_of_kind
 from sim.arm import ArmDriver
 from sim.kinova_real import KinovaRealEnv
 from sim.kortex_driver import DEFAULT_SPEED_M_S, KortexArmDriver
-from worker.capture import png
+from worker.capture import fresh_seed, png
 
 USERNAME_VARIABLE = "VARBOT_KORTEX_USERNAME"
 PASSWORD_VARIABLE = "VARBOT_KORTEX_PASSWORD"
@@ -111,12 +110,17 @@ def arm_settings(session: Any, robot_id: int, household_id: int) -> tuple[models
 
 
 def capture_arm_views(
-    robot_id: int, household_id: int, count: int, task_id: str | None = None, connect: Connect = kortex_driver
+    robot_id: int,
+    household_id: int,
+    count: int,
+    task_id: str | None = None,
+    seed: int | None = None,
+    connect: Connect = kortex_driver,
 ) -> dict:
     """`count` views from the arm's camera: the arm homes, then walks at random (the driver's limits on every
     step) and each view is stored as it is taken, so views taken before a failure are kept."""
     blobs = get_blob_store()
-    seed = secrets.randbits(31)
+    seed = fresh_seed() if seed is None else seed
     rng = np.random.default_rng(seed)
     created = []
     with get_session_factory()() as session:
@@ -151,6 +155,7 @@ def try_arm_commands(
     commands: list[str],
     task_id: str | None = None,
     connect: Connect = kortex_driver,
+    seed: int | None = None,
 ) -> dict[str, Any]:
     """`worker.attempts.try_commands` on the arm: each attempt is one episode of the active policy on the
     arm (homed first), its final view a snapshot to judge; then `random_views` views from the camera."""
@@ -166,7 +171,9 @@ def try_arm_commands(
         return KinovaRealEnv(connect(settings, image_size), image_size, max_steps)
 
     capture = partial(capture_arm_views, connect=connect)
-    return try_commands(robot_id, household_id, attempts, random_views, commands, task_id, make_env, capture)
+    return try_commands(
+        robot_id, household_id, attempts, random_views, commands, task_id, make_env, capture, seed
+    )
 
 
 @contextmanager

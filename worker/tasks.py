@@ -83,7 +83,13 @@ def capture_snapshots(self: Task, robot_id: int, household_id: int, count: int) 
 
 @app.task(name=broker.TASK_TRY_COMMANDS, **_ROBOT)
 def try_commands(
-    self: Task, robot_id: int, household_id: int, attempts: int, random_views: int, commands: list[str]
+    self: Task,
+    robot_id: int,
+    household_id: int,
+    attempts: int,
+    random_views: int,
+    commands: list[str],
+    seed: int | None = None,
 ) -> dict:
     """The robot tries the household's recorded commands with its active policy (or its base model): each
     attempt's final view becomes a snapshot to judge, with its replay; then `random_views` random views.
@@ -94,7 +100,9 @@ def try_commands(
 
     attempt = try_arm_commands if is_real_arm(robot_id) else try_in_world
     try:
-        result = attempt(robot_id, household_id, attempts, random_views, commands, task_id=self.request.id)
+        result = attempt(
+            robot_id, household_id, attempts, random_views, commands, task_id=self.request.id, seed=seed
+        )
     except AttemptRefused as refusal:
         report_refusal(self.request.id, robot_id, "refused", str(refusal))
         logger.info("attempts for robot %s refused: %s", robot_id, refusal)

@@ -258,6 +258,7 @@ def ask_for_attempts(
     random_views: int,
     per_hour: int,
     task_id: str,
+    seed: int | None = None,
 ) -> None:
     """Counts the views against the capture quota, records the task as queued and sends it to the robot
     worker (`broker.TASK_TRY_COMMANDS`)."""
@@ -269,6 +270,7 @@ def ask_for_attempts(
         "attempts": attempts,
         "random_views": random_views,
         "commands": command_keys,
+        "seed": seed,
     }
     try:
         write_status(task_id, {"state": "queued", "robot_id": robot.id, "message": "waiting for the robot"})

@@ -117,6 +117,24 @@ def test_attempts_become_snapshots_answers_become_labels_and_a_fine_tune_with_re
     assert version["notes"].startswith(gate["verdict"])
 
 
+def test_attempts_asked_with_the_same_seed_come_back_the_same_and_without_one_they_are_new(
+    stack: Stack, household: Household, base_model
+) -> None:  # type: ignore[no-untyped-def]
+    robot = household.client.post("/api/v1/robots", json={"name": "seeded-arm", "kind": "kuka-sim"}).json()
+
+    def views(**body: object) -> list[tuple]:
+        before = {s["id"] for s in household.snapshots(robot["id"])}
+        asked = _attempts(household, robot["id"], count=4, random_share=0.5, **body)
+        assert asked["status"]["state"] == "done", asked["status"]
+        made = [s for s in household.snapshots(robot["id"]) if s["id"] not in before]
+        return [(s["source"], s["state"], s["meta"].get("attempt", {}).get("clip_id")) for s in made]
+
+    first = views(seed=7)
+    assert [source for source, *_ in first].count("attempt") == 4 and len(first) > 4, "and random views"
+    assert views(seed=7) == first
+    assert views() != first
+
+
 def test_what_cannot_be_attempted_or_replayed_says_why_and_what_to_do(
     stack: Stack, household: Household, base_model, training_worker
 ) -> None:  # type: ignore[no-untyped-def]

@@ -35,6 +35,13 @@ class AttemptsRequest(BaseModel):
     commands: list[CommandWord] | None = Field(
         default=None, max_length=50, description="command names (or keys) to attempt; default: every one"
     )
+    seed: int | None = Field(
+        default=None,
+        ge=0,
+        lt=2**31 - 1,
+        description="the same seed with the same model, commands and answers so far gives the same attempts "
+        "and random views (to compare two fine-tunes on the same labels); default: new ones each time",
+    )
 
 
 class AttemptsQueued(BaseModel):
@@ -106,7 +113,7 @@ def ask_for_attempts(
         raise Invalid(f"at most {settings.max_capture_count} views per request; ask for fewer")
     task_id = uuid.uuid4().hex
     attempts.ask_for_attempts(
-        robot, command_keys, body.count, random_views, settings.capture_views_per_hour, task_id
+        robot, command_keys, body.count, random_views, settings.capture_views_per_hour, task_id, body.seed
     )
     names = attempts.household_commands(session, caller.household_id)
     return AttemptsQueued(
