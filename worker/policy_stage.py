@@ -27,7 +27,6 @@ class PolicyImproveResult:
     env_steps: int
     updates: int
     recent_success: float | None
-    recent_success_by_room: dict[str, float | None]  # own_room / replay_room; empty without replay
     summary: dict[str, Any]
 
 
@@ -176,9 +175,13 @@ def improve_policy(
         env_steps=int(summary["env_steps"]),
         updates=int(summary["updates"]),
         recent_success=_number(summary.get("recent_success")),
-        recent_success_by_room={k: _number(v) for k, v in summary.get("recent_success_by_room", {}).items()},
         summary=summary,
     )
+
+
+def success_by_room(summary: dict[str, Any]) -> dict[str, float | None]:
+    """The summary's recent success in the household's room and in the replay room (empty without replay)."""
+    return {room: _number(value) for room, value in summary.get("recent_success_by_room", {}).items()}
 
 
 def _number(value: Any) -> float | None:

@@ -51,7 +51,7 @@ def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
 
 def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
     """In the robot's simulated world, or on the arm itself for a real arm (`worker.real_arm`)."""
-    from worker.policy_stage import improve_policy
+    from worker.policy_stage import improve_policy, success_by_room
     from worker.real_arm import arm_env_context
 
     if context.parent_policy is None:
@@ -86,7 +86,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
         "env_steps": result.env_steps,
         "updates": result.updates,
         "recent_success": result.recent_success,
-        "recent_success_by_room": result.recent_success_by_room,
+        "recent_success_by_room": success_by_room(result.summary),
         "time_shares": result.summary.get("time_shares"),
     }
 
