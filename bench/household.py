@@ -18,7 +18,10 @@ fine-tune did to the robot elsewhere, say in the training room.
 
 The simulator plays the person who answers (the snapshot's `sim_heard`: ground truth, in this bench only)
 until the labels give `--triplets` triplets and every command has an *is* answer (as long as `--attempts`
-allows: without one, a command's success cannot be measured); then an admin starts a fine-tune run (VAR
+allows: without one, a command's success cannot be measured). Attempts come in rounds of one per command;
+once the labels give `--triplets` triplets, the robot is asked only for the commands with no *is* answer
+yet, and no more random views are answered, since every answer adds triplets. Then an admin starts a
+fine-tune run (VAR
 fine-tune with replay → policy self-improvement → evaluation → gate). Reported: simulated success with the
 household's own clips as goals, before (the active base model) and after (the candidate) on the same episodes,
 overall and per command; held-out triplet accuracy; the gate's verdict; answers given and the share that were
@@ -100,7 +103,12 @@ class Answers:
     def enough(self, triplets: int, target: int) -> bool:
         """Labelling stops at `target` triplets once every command has an *is* answer: a household goes on
         until each command has an example (without one, its success cannot be measured)."""
-        return triplets >= target and len(self.commands_shown) == self.commands
+        return triplets >= target and not self.commands_missing
+
+    @property
+    def commands_missing(self) -> list[int]:
+        """The household's commands no answer has said a view shows yet."""
+        return sorted(set(range(self.commands)) - self.shown)
 
     @property
     def commands_shown(self) -> set[int]:
@@ -292,21 +300,21 @@ def answer_pairs(
     target: int,
     answers: Answers,
     show: Callable[[int], None],
-) -> bool:
-    """Pairs from GET /labels/next until `answers.enough` says so; the simulator plays each member:
-    'is' when the clip names what is in view, else 'is not'. False when no pair was left to ask. `show` gets
-    the triplet count now and then."""
+    until_target: bool = False,
+) -> None:
+    """Pairs from GET /labels/next until `answers.enough` says so (`until_target`: until the labels give
+    `target` triplets), or until every view is answered; the simulator plays each member: 'is' when the clip
+    names what is in view, else 'is not'. `show` gets the triplet count now and then."""
     while True:
         member = family[answers.pair_answers % len(family)]
         if answers.pair_answers % 25 == 0:
             triplets = triplet_stats(member, robot_id)["triplets"]
             show(triplets)
-            if answers.enough(triplets, target):
-                return True
+            if triplets >= target if until_target else answers.enough(triplets, target):
+                return
         pair = member.get("/api/v1/labels/next", params={"robot_id": robot_id}).json()
         if pair["snapshot"] is None:
-            console.print(f"[yellow]no more pairs to ask about: {pair['message']}")
-            return False
+            return
         heard = pair["snapshot"]["meta"].get("sim_heard")
         verdict = "is" if heard is not None and intent_of_clip[pair["clip"]["id"]] == heard else "is_not"
         body = {"snapshot_id": pair["snapshot"]["id"], "clip_id": pair["clip"]["id"], "verdict": verdict}
@@ -360,10 +368,7 @@ def attempt_outcome(answer: dict[str, str]) -> str:
     return "nothing" if answer["instead"] == "nothing" else "other"
 
 
-def ask_for_attempts(
-    admin: httpx.Client, robot_id: int, count: int, random_share: float, seed: int | None = None
-) -> dict:
-    body = {"count": count, "random_share": random_share, "seed": seed}
+def ask_for_attempts(admin: httpx.Client, robot_id: int, body: dict) -> dict:
     response = admin.post(f"/api/v1/robots/{robot_id}/attempts", json=body)
     if response.status_code != 202:
         raise BenchError(f"attempts were refused: {response.text}")
@@ -389,6 +394,20 @@ class Labelling:
     random_share: float
     seed: int | None = None  # of the attempts: the n-th request asks with seed + the attempts asked before
 
+    def next_request(self, asked: int, triplets: int, answers: Answers, names: list[str]) -> dict:
+        """The next POST …/attempts body. Below the triplet target: a round of attempts at every command
+        (the robot takes those with no *is* answer first), random views beside them in mixed mode. At the
+        target: one attempt at each command still without an *is* answer and nothing else, as a household
+        that has labelled enough asks the robot to show the commands it has not seen done yet (each further
+        answer adds triplets, and a view of a command already shown only adds more)."""
+        left = self.attempts - asked
+        seed = None if self.seed is None else self.seed + asked
+        if triplets >= self.target:
+            missing = [names[intent] for intent in answers.commands_missing]
+            return {"count": min(len(missing), left), "random_share": 0.0, "commands": missing, "seed": seed}
+        share = self.random_share if self.mode == "mixed" else 0.0
+        return {"count": min(self.attempts_per_request, left), "random_share": share, "seed": seed}
+
 
 def label(
     family: list[httpx.Client],
@@ -411,18 +430,21 @@ def label(
         if plan.mode == "views":
             capture(family[0], robot_id, plan.views)
             answer_pairs(family, robot_id, intent_of_clip, plan.target, answers, show)
+            if answers.commands_missing:
+                console.print(f"[yellow]every captured view is answered and no view showed "
+                              f"{', '.join(names[i] for i in answers.commands_missing)}: capture more views "
+                              f"(--views) to give every command an example")  # fmt: skip
         asked = 0
         while plan.mode != "views" and asked < plan.attempts:
-            if answers.enough(triplet_stats(family[0], robot_id)["triplets"], plan.target):
+            triplets = triplet_stats(family[0], robot_id)["triplets"]
+            if answers.enough(triplets, plan.target):
                 break
-            count = min(plan.attempts_per_request, plan.attempts - asked)
-            share = plan.random_share if plan.mode == "mixed" else 0.0
-            seed = None if plan.seed is None else plan.seed + asked
-            ask_for_attempts(family[0], robot_id, count, share, seed)
-            asked += count
+            request = plan.next_request(asked, triplets, answers, names)
+            ask_for_attempts(family[0], robot_id, request)
+            asked += request["count"]
             outcomes += answer_attempts(family, robot_id, names, plan.target, answers)
             if plan.mode == "mixed":
-                answer_pairs(family, robot_id, intent_of_clip, plan.target, answers, show)
+                answer_pairs(family, robot_id, intent_of_clip, plan.target, answers, show, until_target=True)
             show(triplet_stats(family[0], robot_id)["triplets"])
     stats = triplet_stats(family[0], robot_id)
     return {
@@ -571,8 +593,9 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
     if response.status_code != 201:
         raise BenchError(f"the robot was refused: {response.text}")
     robot_id = response.json()["id"]
-    plan = Labelling(args.labelling, args.triplets, args.views, args.attempts, args.attempts_per_request,
-                     args.random_share, args.attempt_seed)  # fmt: skip
+    per_request = args.attempts_per_request or min(len(names), ATTEMPTS_PER_REQUEST)
+    plan = Labelling(args.labelling, args.triplets, args.views, args.attempts, per_request, args.random_share,
+                     args.attempt_seed)  # fmt: skip
     labelling_started = time.perf_counter()
     labelled = label(members, robot_id, intent_of_clip, names, plan)
     labelling_s = time.perf_counter() - labelling_started
@@ -623,7 +646,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )  # fmt: skip
     parser.add_argument("--views", type=int, default=600, help="views mode: random views captured")
     parser.add_argument("--attempts", type=int, default=200, help="attempts / mixed: the most attempts asked")
-    parser.add_argument("--attempts-per-request", type=int, default=20)
+    parser.add_argument(
+        "--attempts-per-request", type=int, default=None,
+        help="attempts / mixed: attempts per request below the triplet target (default: one per command)",
+    )  # fmt: skip
     parser.add_argument(
         "--random-share", type=float, default=0.25, help="mixed: random views beside attempts"
     )
@@ -653,7 +679,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--out", type=Path, default=RESULT)
     args = parser.parse_args(argv)
-    if not 1 <= args.attempts_per_request <= ATTEMPTS_PER_REQUEST:
+    if args.attempts_per_request is not None and not 1 <= args.attempts_per_request <= ATTEMPTS_PER_REQUEST:
         parser.error(
             f"--attempts-per-request must be 1 to {ATTEMPTS_PER_REQUEST} (the API's most per request)"
         )

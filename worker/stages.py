@@ -13,14 +13,19 @@ from typing import Any
 from backend import models
 from backend.db import get_session_factory
 from backend.deps import get_blob_store
+from backend.schemas import RunParams
 from worker.evaluation import ModelScore, score_model
 from worker.progress import Cancelled, Progress
 from worker.run_context import RunContext, materialise, materialise_optional
 from worker.var_stage import Diverged
 
 EVAL_NUM_ENVS = int(os.environ.get("VARBOT_EVAL_NUM_ENVS", 4))
-DEFAULT_REPLAY_FRACTION = 0.25  # of the fine-tune's training triplets, as `varbot var finetune` mixes
-DEFAULT_POLICY_REPLAY_SHARE = 0.25  # of the policy self-improvement's environments, in the base's rooms
+
+
+def run_param(params: dict[str, Any], name: str) -> Any:
+    """A run's parameter, or `RunParams`' default (the one place defaults live) for a run stored before the
+    parameter existed."""
+    return params.get(name, RunParams.model_fields[name].default)
 
 
 def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
@@ -29,7 +34,7 @@ def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
     from worker.var_stage import finetune_var
 
     params = context.params
-    fraction = float(params.get("replay_fraction", DEFAULT_REPLAY_FRACTION))
+    fraction = float(run_param(params, "replay_fraction"))
     data, replayed = with_replay(context.data, context.parent_var, context.world, fraction, params["seed"])
 
     def on_epoch(fraction: float, record: dict[str, Any]) -> bool:
@@ -75,9 +80,9 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
             live,
             on_arm,
             context.room,
-            float(context.params.get("policy_replay_share", DEFAULT_POLICY_REPLAY_SHARE)),
+            float(run_param(context.params, "policy_replay_share")),
             context.parent_base_ranges,
-            bool(context.params.get("policy_view_follows_var", True)),
+            bool(run_param(context.params, "policy_view_follows_var")),
         )
     compact = context.folder / "policy" / "final.pt"
     _compact_policy(result.checkpoint, compact)

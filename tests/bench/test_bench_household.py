@@ -61,7 +61,7 @@ def test_a_households_own_clips_in_a_held_out_room_with_mixed_labelling(
     stack: bench.Stack, folders: tuple[Path, Path], tmp_path: Path
 ) -> None:
     options = ["--room", "lamplit_room", "--labelling", "mixed", "--attempts", "8", "--attempt-seed", "3"]
-    result = _run(stack, folders[0], tmp_path / "mixed.json", *options, "--attempts-per-request", "4")
+    result = _run(stack, folders[0], tmp_path / "mixed.json", *options)
     household = result["household"]
     assert sorted(household["speakers"]) == ["en", "en-us"], "members from the file names"
     assert household["members"] == 2
@@ -113,6 +113,21 @@ def test_labelling_goes_on_past_the_triplet_target_until_every_command_has_an_is
     answers.shown.add(2)
     assert answers.enough(1000, 60) and not answers.enough(59, 60)
     assert answers.to_dict()["commands_with_an_is_answer"] == 4
+
+
+def test_attempts_come_in_rounds_and_past_the_target_only_the_commands_never_shown_are_tried() -> None:
+    plan = bench.Labelling("mixed", target=1000, views=0, attempts=30, attempts_per_request=4,
+                           random_share=0.25, seed=7)  # fmt: skip
+    answers = bench.Answers(commands=4)
+    answers.shown.update({0, 3})
+    below = plan.next_request(asked=8, triplets=999, answers=answers, names=WORDS)
+    assert below == {"count": 4, "random_share": 0.25, "seed": 15}, "a round, random views beside it"
+    at_target = plan.next_request(asked=12, triplets=1000, answers=answers, names=WORDS)
+    assert at_target == {"count": 2, "random_share": 0.0, "commands": [WORDS[1], WORDS[2]], "seed": 19}
+    last = plan.next_request(asked=29, triplets=1200, answers=answers, names=WORDS)
+    assert last["count"] == 1, "never past --attempts"
+    attempts_only = bench.Labelling("attempts", 1000, 0, 30, 4, 0.25)
+    assert attempts_only.next_request(0, 0, answers, WORDS) == {"count": 4, "random_share": 0.0, "seed": None}
 
 
 def test_a_run_that_does_not_end_in_time_says_where_to_look(

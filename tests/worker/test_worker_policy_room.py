@@ -10,6 +10,7 @@ from learning.rl.ppo import PPOConfig
 from worker.base_models import SHIPPED_DIR, BaseModel
 from worker.policy_stage import improvement_config
 from worker.run_context import recorded_ranges
+from worker.stages import run_param
 
 
 def test_a_robot_in_a_held_out_room_improves_its_policy_in_that_room_not_in_the_base_models_rooms() -> None:
@@ -94,3 +95,10 @@ def test_a_var_view_policy_follows_the_households_var_unless_told_not_to_and_a_c
     pixels = improvement_config(PPOConfig(room="randomised"), 800, 0, None, None)
     assert not pixels.policy_view_follows_var
     pixels.validate()
+
+
+def test_a_run_stored_before_a_parameter_existed_runs_with_todays_default_for_it() -> None:
+    today = resolve_params("standard", {})
+    for name in ("replay_fraction", "policy_replay_share", "policy_view_follows_var"):
+        assert run_param({}, name) == getattr(today, name), name
+    assert run_param({"policy_view_follows_var": False}, "policy_view_follows_var") is False, "a stored value"
