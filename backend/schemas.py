@@ -277,6 +277,13 @@ class RunParams(BaseModel):
         description="share of the policy self-improvement's simulated environments that keep practising in "
         "the base model's rooms instead of the robot's own, so that it keeps what it knew there (0: none)",
     )
+    policy_learning_rate_scale: float = Field(
+        default=1 / 3,
+        gt=0.0,
+        le=3.0,
+        description="the policy self-improvement's learning rate as a multiple of the base model's (a "
+        "fine-tune of a household's own version keeps that version's rate)",
+    )
     policy_view_follows_var: bool = Field(
         default=True,
         description="for a policy that sees through the VAR: during its self-improvement it sees through "

@@ -65,10 +65,11 @@ def improvement_config(
     replay_share: float = 0.0,
     base_ranges: "RoomRanges | None" = None,
     view_follows_var: bool = True,
+    learning_rate_scale: float = 1 / 3,
 ) -> "PPOConfig":
     """The parent's PPO settings, continued for `steps` in the household's room (or on its real robot) with
-    the household's clips as goals, at a third of the base model's learning rate: a parent that is itself a
-    household's fine-tune already runs at that rate, so a second and third fine-tune do not slow down.
+    the household's clips as goals, at `learning_rate_scale` times the base model's learning rate: a parent
+    that is itself a household's fine-tune already runs at its rate, so a second and third fine-tune keep it.
 
     In simulation `replay_share` of the environments keep practising in the base model's own rooms (for the
     shipped bases, a new room per episode from the training ranges), so that what the base learnt there is
@@ -97,7 +98,7 @@ def improvement_config(
     return dataclasses.replace(
         base,
         total_steps=max(int(steps), base.batch_size),  # at least one PPO update
-        learning_rate=base.learning_rate / 3 if from_base else base.learning_rate,
+        learning_rate=base.learning_rate * learning_rate_scale if from_base else base.learning_rate,
         goal_split="household",
         seed=seed,
         current_sound=False,
@@ -122,14 +123,15 @@ def improve_policy(
     replay_share: float = 0.0,
     base_ranges: "RoomRanges | None" = None,
     view_follows_var: bool = True,
+    learning_rate_scale: float = 1 / 3,
 ) -> PolicyImproveResult:
     """PPO from `policy_checkpoint`; `on_update(fraction, point)` after each update (True: stop),
     `on_rollout_step` after each step of env 0 (`learning.rl.ppo.RolloutStep`: the live view). With
     `robot_env_context` (`learning.rl.env_groups.in_process_env`: a real robot), PPO runs on that one
     environment in this process instead of simulated worlds; simulated worlds are in `room`, the robot's own
     (None: the training room), but for `replay_share` of the environments, which practise in the base
-    model's rooms (`improvement_config`, with `base_ranges` and `view_follows_var`). The VAR and the policy
-    run where the worker's VARBOT_DEVICE says (`learning.device.resolve_device`)."""
+    model's rooms (`improvement_config`, with `base_ranges`, `view_follows_var` and `learning_rate_scale`).
+    The VAR and the policy run where the worker's VARBOT_DEVICE says (`learning.device.resolve_device`)."""
     from backend.settings import get_settings
     from learning.device import resolve_device
     from learning.rl.ppo import PPOConfig, read_policy_checkpoint
@@ -140,7 +142,15 @@ def improve_policy(
     if base.goal_encoder != "var":
         raise ValueError(f"{policy_checkpoint} was not trained with the VAR; it cannot improve itself")
     config = improvement_config(
-        base, steps, seed, room, robot_env_context, replay_share, base_ranges, view_follows_var
+        base,
+        steps,
+        seed,
+        room,
+        robot_env_context,
+        replay_share,
+        base_ranges,
+        view_follows_var,
+        learning_rate_scale,
     )
     updates_total = config.num_updates
 

@@ -83,6 +83,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
             float(run_param(context.params, "policy_replay_share")),
             context.parent_base_ranges,
             bool(run_param(context.params, "policy_view_follows_var")),
+            float(run_param(context.params, "policy_learning_rate_scale")),
         )
     compact = context.folder / "policy" / "final.pt"
     _compact_policy(result.checkpoint, compact)

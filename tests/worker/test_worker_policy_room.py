@@ -30,6 +30,14 @@ def test_every_fine_tune_of_a_household_runs_at_a_third_of_the_base_models_learn
     assert first.learning_rate == second.learning_rate == third.learning_rate == base.learning_rate / 3
 
 
+def test_a_run_can_ask_for_another_share_of_the_base_models_learning_rate_and_fine_tunes_keep_it() -> None:
+    base = PPOConfig(learning_rate=3e-4)
+    first = improvement_config(base, 800, 0, None, None, learning_rate_scale=1.0)
+    second = improvement_config(first, 800, 1, None, None, learning_rate_scale=0.5)
+    assert first.learning_rate == second.learning_rate == base.learning_rate
+    assert resolve_params("standard", {}).policy_learning_rate_scale == 1 / 3, "a third by default"
+
+
 def test_a_robot_in_the_training_room_improves_there() -> None:
     config = improvement_config(PPOConfig(room="randomised"), 800, 0, None, None)
     assert config.room == "training" and world_room(config.room) is None
