@@ -625,9 +625,24 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
 
 def policy_training(run: dict) -> dict:
     """How the fine-tune's policy fared while it trained: its recent success at the end, over all its
-    environments and apart in the household's room and in the base model's rooms it replayed."""
+    environments and apart in the household's room and in the base model's rooms it replayed; and in the
+    household's room, the mean over each quarter of its updates (did it climb?)."""
     stage = run["metrics"].get("stages", {}).get("policy_improve", {})
-    return {key: stage.get(key) for key in ("env_steps", "recent_success", "recent_success_by_room")}
+    curve = run["metrics"].get("curves", {}).get("policy_improve", [])
+    return {
+        **{key: stage.get(key) for key in ("env_steps", "recent_success", "recent_success_by_room")},
+        "own_room_success_by_quarter": mean_by_quarter([point.get("own_room_success") for point in curve]),
+    }
+
+
+def mean_by_quarter(values: list[float | None]) -> list[float | None]:
+    """The mean of each quarter of `values` in order (None where a quarter has no value)."""
+    quarters: list[float | None] = []
+    for quarter in range(4):
+        part = values[len(values) * quarter // 4 : len(values) * (quarter + 1) // 4]
+        known = [value for value in part if value is not None]
+        quarters.append(round(sum(known) / len(known), 4) if known else None)
+    return quarters
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -744,6 +759,11 @@ def print_result(result: dict, out: Path) -> None:
         "",
         f"{_pct(training['recent_success'])} ({_pct(by_room.get('own_room'))} / "
         f"{_pct(by_room.get('replay_room'))})",
+    )
+    table.add_row(
+        "policy's training success in the household's room, by quarter of its updates",
+        "",
+        " → ".join(_pct(value) for value in training["own_room_success_by_quarter"]),
     )
     for stage, seconds in (result["run"]["stages_s"] or {}).items():
         table.add_row(f"wall time: {stage}", "", f"{seconds:.0f} s")

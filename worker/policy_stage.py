@@ -160,6 +160,7 @@ def improve_policy(
             "env_steps": record["global_step"],
             "episode_return": _number(record.get("episode_return")),
             "recent_success": _number(record.get("recent_success")),
+            "own_room_success": _number(own_room_success(record)),
             "sps": _number(record.get("sps")),
         }
         return on_update(record["update"] / updates_total, point)
@@ -192,6 +193,12 @@ def improve_policy(
 def success_by_room(summary: dict[str, Any]) -> dict[str, float | None]:
     """The summary's recent success in the household's room and in the replay room (empty without replay)."""
     return {room: _number(value) for room, value in summary.get("recent_success_by_room", {}).items()}
+
+
+def own_room_success(record: dict[str, Any]) -> Any:
+    """An update's recent success in the household's room: all of its environments without replay."""
+    by_room = record.get("recent_success_by_room")
+    return by_room["own_room"] if by_room else record.get("recent_success")
 
 
 def _number(value: Any) -> float | None:

@@ -54,6 +54,7 @@ def _run(stack: bench.Stack, clips: Path, out: Path, *options: str) -> dict:
     assert result["load_average"]["before"] and result["machine"]["cpu_cores"]
     training = result["run"]["policy_training"]
     assert training["env_steps"] > 0 and training["recent_success_by_room"] is not None
+    assert len(training["own_room_success_by_quarter"]) == 4  # None: no episode ended in a quarter
     return result
 
 
@@ -128,6 +129,12 @@ def test_attempts_come_in_rounds_and_past_the_target_only_the_commands_never_sho
     assert last["count"] == 1, "never past --attempts"
     attempts_only = bench.Labelling("attempts", 1000, 0, 30, 4, 0.25)
     assert attempts_only.next_request(0, 0, answers, WORDS) == {"count": 4, "random_share": 0.0, "seed": None}
+
+
+def test_the_policys_training_curve_is_summed_up_by_the_mean_of_each_quarter_of_its_updates() -> None:
+    assert bench.mean_by_quarter([0.2, 0.4, 0.5, 0.5, 0.6, None, 0.8, 1.0]) == [0.3, 0.5, 0.6, 0.9]
+    assert bench.mean_by_quarter([0.7]) == [None, None, None, 0.7], "one update: its point is the last"
+    assert bench.mean_by_quarter([]) == [None] * 4
 
 
 def test_a_run_that_does_not_end_in_time_says_where_to_look(

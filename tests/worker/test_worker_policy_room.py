@@ -8,7 +8,7 @@ from backend.services.runs import resolve_params
 from core.rooms import ROOM_PRESETS, DomainShift, RoomRanges, room_setting, world_room
 from learning.rl.ppo import PPOConfig
 from worker.base_models import SHIPPED_DIR, BaseModel
-from worker.policy_stage import improvement_config
+from worker.policy_stage import improvement_config, own_room_success
 from worker.run_context import recorded_ranges
 from worker.stages import run_param
 
@@ -110,3 +110,9 @@ def test_a_run_stored_before_a_parameter_existed_runs_with_todays_default_for_it
     for name in ("replay_fraction", "policy_replay_share", "policy_view_follows_var"):
         assert run_param({}, name) == getattr(today, name), name
     assert run_param({"policy_view_follows_var": False}, "policy_view_follows_var") is False, "a stored value"
+
+
+def test_an_updates_success_in_the_households_room_leaves_out_the_replayed_rooms() -> None:
+    split = {"recent_success": 0.6, "recent_success_by_room": {"own_room": 0.7, "replay_room": 0.3}}
+    assert own_room_success(split) == 0.7
+    assert own_room_success({"recent_success": 0.6}) == 0.6, "without replay every environment is its own"
