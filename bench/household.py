@@ -296,20 +296,19 @@ def answer_pairs(
     family: list[httpx.Client],
     robot_id: int,
     intent_of_clip: dict[int, int],
-    target: int,
+    done: Callable[[int], bool],
     answers: Answers,
     show: Callable[[int], None],
-    until_target: bool = False,
 ) -> None:
-    """Pairs from GET /labels/next until `answers.enough` says so (`until_target`: until the labels give
-    `target` triplets), or until every view is answered; the simulator plays each member: 'is' when the clip
-    names what is in view, else 'is not'. `show` gets the triplet count now and then."""
+    """Pairs from GET /labels/next until `done(triplet count)` or until every view is answered; the simulator
+    plays each member: 'is' when the clip names what is in view, else 'is not'. `show` gets the triplet count
+    now and then."""
     while True:
         member = family[answers.pair_answers % len(family)]
         if answers.pair_answers % 25 == 0:
             triplets = triplet_stats(member, robot_id)["triplets"]
             show(triplets)
-            if triplets >= target if until_target else answers.enough(triplets, target):
+            if done(triplets):
                 return
         pair = member.get("/api/v1/labels/next", params={"robot_id": robot_id}).json()
         if pair["snapshot"] is None:
@@ -428,7 +427,9 @@ def label(
 
         if plan.mode == "views":
             capture(family[0], robot_id, plan.views)
-            answer_pairs(family, robot_id, intent_of_clip, plan.target, answers, show)
+            answer_pairs(
+                family, robot_id, intent_of_clip, lambda t: answers.enough(t, plan.target), answers, show
+            )
             if answers.commands_missing:
                 console.print(f"[yellow]every captured view is answered and no view showed "
                               f"{', '.join(names[i] for i in answers.commands_missing)}: capture more views "
@@ -443,7 +444,7 @@ def label(
             asked += request["count"]
             outcomes += answer_attempts(family, robot_id, names, plan.target, answers)
             if plan.mode == "mixed":
-                answer_pairs(family, robot_id, intent_of_clip, plan.target, answers, show, until_target=True)
+                answer_pairs(family, robot_id, intent_of_clip, lambda t: t >= plan.target, answers, show)
             show(triplet_stats(family[0], robot_id)["triplets"])
     stats = triplet_stats(family[0], robot_id)
     return {

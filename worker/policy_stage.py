@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from backend.schemas import RunParams
 from worker.household import HouseholdData
 
 if TYPE_CHECKING:
@@ -64,8 +65,8 @@ def improvement_config(
     robot_env_context: str | None,
     replay_share: float = 0.0,
     base_ranges: "RoomRanges | None" = None,
-    view_follows_var: bool = True,
-    learning_rate_scale: float = 1 / 3,
+    view_follows_var: bool = RunParams.model_fields["policy_view_follows_var"].default,
+    learning_rate_scale: float = RunParams.model_fields["policy_learning_rate_scale"].default,
 ) -> "PPOConfig":
     """The parent's PPO settings, continued for `steps` in the household's room (or on its real robot) with
     the household's clips as goals, at `learning_rate_scale` times the base model's learning rate: a parent
@@ -122,8 +123,8 @@ def improve_policy(
     room: "DomainShift | None" = None,
     replay_share: float = 0.0,
     base_ranges: "RoomRanges | None" = None,
-    view_follows_var: bool = True,
-    learning_rate_scale: float = 1 / 3,
+    view_follows_var: bool = RunParams.model_fields["policy_view_follows_var"].default,
+    learning_rate_scale: float = RunParams.model_fields["policy_learning_rate_scale"].default,
 ) -> PolicyImproveResult:
     """PPO from `policy_checkpoint`; `on_update(fraction, point)` after each update (True: stop),
     `on_rollout_step` after each step of env 0 (`learning.rl.ppo.RolloutStep`: the live view). With

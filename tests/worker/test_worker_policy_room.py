@@ -107,7 +107,12 @@ def test_a_var_view_policy_follows_the_households_var_unless_told_not_to_and_a_c
 
 def test_a_run_stored_before_a_parameter_existed_runs_with_todays_default_for_it() -> None:
     today = resolve_params("standard", {})
-    for name in ("replay_fraction", "policy_replay_share", "policy_view_follows_var"):
+    for name in (
+        "replay_fraction",
+        "policy_replay_share",
+        "policy_view_follows_var",
+        "policy_learning_rate_scale",
+    ):
         assert run_param({}, name) == getattr(today, name), name
     assert run_param({"policy_view_follows_var": False}, "policy_view_follows_var") is False, "a stored value"
 
