@@ -529,19 +529,30 @@ def score_in_room(
     return {
         "run_id": run["id"], "model": scored, "sim_success": score.get("sim_success"),
         "sim_success_by_intent": score.get("sim_success_by_intent"), "episodes": score.get("sim_episodes"),
-        "note": score.get("sim_note"),
+        "sim_final_views": score.get("sim_final_views"), "note": score.get("sim_note"),
     }  # fmt: skip
 
 
 def per_command(names: list[str], before: dict, after: dict) -> list[dict]:
+    """Each command's success before and after, and the share of its tries that ended at no object at all
+    (the others that failed ended at another command's object)."""
     old = before.get("sim_success_by_intent") or []
     new = after.get("sim_success_by_intent") or []
     return [
         {"intent": intent, "command": name,
          "success_before": old[intent] if intent < len(old) else None,
-         "success_after": new[intent] if intent < len(new) else None}
+         "success_after": new[intent] if intent < len(new) else None,
+         "ended_at_no_object_before": share_at_no_object(before.get("sim_final_views"), intent),
+         "ended_at_no_object_after": share_at_no_object(after.get("sim_final_views"), intent)}
         for intent, name in enumerate(names)
     ]  # fmt: skip
+
+
+def share_at_no_object(final_views: list[list[int]] | None, intent: int) -> float | None:
+    """The share of `intent`'s tries whose robot ended at no object (the last column of its row)."""
+    if not final_views or intent >= len(final_views) or not sum(final_views[intent]):
+        return None
+    return final_views[intent][-1] / sum(final_views[intent])
 
 
 def run_params(args: argparse.Namespace) -> dict:
@@ -736,6 +747,11 @@ def print_result(result: dict, out: Path) -> None:
     for row in result["per_command"]:
         table.add_row(
             f"  command {row['command']!r}", _pct(row["success_before"]), _pct(row["success_after"])
+        )
+        table.add_row(
+            "    its tries that ended at no object",
+            _pct(row.get("ended_at_no_object_before")),
+            _pct(row.get("ended_at_no_object_after")),
         )
     for room, check in (result.get("other_rooms") or {}).items():
         before, after = check["before"]["sim_success"], check["after"]["sim_success"]

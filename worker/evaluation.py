@@ -26,6 +26,8 @@ class ModelScore:
     sim_success: float | None
     sim_episodes: int
     sim_success_by_intent: list[float] | None = None
+    # per intent: how many tries ended at each intent's object, the last column at none (wrong target or lost)
+    sim_final_views: list[list[int]] | None = None
     sim_note: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
@@ -93,6 +95,7 @@ def score_model(
         score.sim_success = float(result.success_rate)
         score.sim_episodes = len(result.episodes)
         score.sim_success_by_intent = [None if math.isnan(x) else float(x) for x in result.success_by_intent]
+        score.sim_final_views = result.final_view_by_intent
     return score
 
 

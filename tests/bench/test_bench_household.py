@@ -55,6 +55,11 @@ def _run(stack: bench.Stack, clips: Path, out: Path, *options: str) -> dict:
     training = result["run"]["policy_training"]
     assert training["env_steps"] > 0 and training["recent_success_by_room"] is not None
     assert len(training["own_room_success_by_quarter"]) == 4  # None: no episode ended in a quarter
+    for row in result["per_command"]:
+        for when in ("before", "after"):
+            success, nowhere = row[f"success_{when}"], row[f"ended_at_no_object_{when}"]
+            assert (success is None) == (nowhere is None), row
+            assert success is None or 0 <= nowhere <= 1 - success + 1e-9, "a success ended at its object"
     return result
 
 
@@ -105,6 +110,14 @@ def test_attempts_alone_and_views_alone_in_the_other_rooms(
                  "--room", "training", "--household", "viewing")  # fmt: skip
     assert views["labelling"]["attempt_answers"] == 0 and views["labelling"]["pair_answers"] >= 1
     assert views["labelling"]["views_collected"] == 20 and views["household"]["room"] == "training"
+
+
+def test_each_commands_failures_are_told_apart_by_whether_the_robot_ended_at_no_object_at_all() -> None:
+    final_views = [[6, 1, 0, 3], [0, 0, 0, 0], [0, 2, 8, 0]]  # rows: commands; last column: no object
+    assert bench.share_at_no_object(final_views, 0) == 0.3
+    assert bench.share_at_no_object(final_views, 1) is None, "no tries"
+    assert bench.share_at_no_object(final_views, 2) == 0.0, "its two failures ended at another object"
+    assert bench.share_at_no_object(None, 0) is None, "not measured"
 
 
 def test_labelling_goes_on_past_the_triplet_target_until_every_command_has_an_is_answer() -> None:
