@@ -36,9 +36,19 @@ def test_the_presets_budgets_come_from_the_household_runs_they_cite():
         knob: preset[knob] for knob in budget_knobs
     }
     stages = standard["run"]["stages_s"]
-    assert runs.minutes_here(RunParams(**runs.PRESETS["standard"])) == round(sum(stages.values()) / 60, 1)
+    assert standard["run"]["params"]["replay_fraction"] == runs.MEASURED_REPLAY_FRACTION
+    assert runs.minutes_here(RunParams(**standard["run"]["params"])) == round(sum(stages.values()) / 60, 1)
     thorough = json.loads((REPO_ROOT / "bench" / "results" / "household_thorough.json").read_text())
     measured = sum(thorough["run"]["stages_s"].values()) / 60
     predicted = runs.minutes_here(RunParams(**thorough["run"]["params"]))
     # per-unit costs spread each stage's start-up over its units, so they over-predict a longer run a little
     assert 0 <= (predicted - measured) / measured < 0.10, "the costs predict the thorough run within 10 %"
+
+
+def test_a_var_epoch_is_budgeted_in_proportion_to_its_triplets_household_and_replayed() -> None:
+    from backend.services import runs
+
+    measured = runs.seconds_per_var_epoch(runs.MEASURED_REPLAY_FRACTION)
+    assert measured == pytest.approx(runs.SECONDS_PER_VAR_EPOCH)
+    assert runs.seconds_per_var_epoch(0.5) == pytest.approx(1.5 * measured), "2 per household one"
+    assert runs.seconds_per_var_epoch(0.0) == pytest.approx(0.75 * measured)
