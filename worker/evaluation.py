@@ -26,7 +26,7 @@ class ModelScore:
     sim_success: float | None
     sim_episodes: int
     sim_success_by_intent: list[float] | None = None
-    # per intent: how many tries ended at each intent's object, the last column at none (wrong target or lost)
+    # per intent: how many tries ended at each intent's object, the last column at none (between or off them)
     sim_final_views: list[list[int]] | None = None
     sim_note: str | None = None
 
