@@ -750,8 +750,8 @@ def print_result(result: dict, out: Path) -> None:
         )
         table.add_row(
             "    its tries that ended at no object",
-            _pct(row.get("ended_at_no_object_before")),
-            _pct(row.get("ended_at_no_object_after")),
+            _pct(row["ended_at_no_object_before"]),
+            _pct(row["ended_at_no_object_after"]),
         )
     for room, check in (result.get("other_rooms") or {}).items():
         before, after = check["before"]["sim_success"], check["after"]["sim_success"]
