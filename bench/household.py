@@ -529,13 +529,14 @@ def score_in_room(
     return {
         "run_id": run["id"], "model": scored, "sim_success": score.get("sim_success"),
         "sim_success_by_intent": score.get("sim_success_by_intent"), "episodes": score.get("sim_episodes"),
-        "sim_final_views": score.get("sim_final_views"), "note": score.get("sim_note"),
+        "sim_final_views": score.get("sim_final_views"), "sim_missed_by_m": score.get("sim_missed_by_m"),
+        "note": score.get("sim_note"),
     }  # fmt: skip
 
 
 def per_command(names: list[str], before: dict, after: dict) -> list[dict]:
-    """Each command's success before and after, and the share of its tries that ended at no object at all
-    (the others that failed ended at another command's object)."""
+    """Each command's success before and after, the share of its tries that ended at no object at all (the
+    others that failed ended at another command's object), and how far from its object those stopped."""
     old = before.get("sim_success_by_intent") or []
     new = after.get("sim_success_by_intent") or []
     return [
@@ -543,7 +544,9 @@ def per_command(names: list[str], before: dict, after: dict) -> list[dict]:
          "success_before": old[intent] if intent < len(old) else None,
          "success_after": new[intent] if intent < len(new) else None,
          "ended_at_no_object_before": share_at_no_object(before.get("sim_final_views"), intent),
-         "ended_at_no_object_after": share_at_no_object(after.get("sim_final_views"), intent)}
+         "ended_at_no_object_after": share_at_no_object(after.get("sim_final_views"), intent),
+         "missed_by_cm_before": missed_by_cm(before.get("sim_missed_by_m"), intent),
+         "missed_by_cm_after": missed_by_cm(after.get("sim_missed_by_m"), intent)}
         for intent, name in enumerate(names)
     ]  # fmt: skip
 
@@ -553,6 +556,13 @@ def share_at_no_object(final_views: list[list[int]] | None, intent: int) -> floa
     if not final_views or intent >= len(final_views) or not sum(final_views[intent]):
         return None
     return final_views[intent][-1] / sum(final_views[intent])
+
+
+def missed_by_cm(missed_by_m: list[float | None] | None, intent: int) -> float | None:
+    """The median distance (cm) from `intent`'s object at the end of its tries that ended at no object."""
+    if not missed_by_m or intent >= len(missed_by_m) or missed_by_m[intent] is None:
+        return None
+    return round(100 * missed_by_m[intent], 1)
 
 
 def run_params(args: argparse.Namespace) -> dict:
@@ -753,6 +763,11 @@ def print_result(result: dict, out: Path) -> None:
             _pct(row["ended_at_no_object_before"]),
             _pct(row["ended_at_no_object_after"]),
         )
+        table.add_row(
+            "    how far from its object those stopped (median)",
+            _cm(row["missed_by_cm_before"]),
+            _cm(row["missed_by_cm_after"]),
+        )
     for room, check in (result.get("other_rooms") or {}).items():
         before, after = check["before"]["sim_success"], check["after"]["sim_success"]
         table.add_row(f"simulated success in {room} (robot moved there)", _pct(before), _pct(after))
@@ -793,6 +808,10 @@ def print_result(result: dict, out: Path) -> None:
 
 def _pct(value: float | None) -> str:
     return "n/a" if value is None else f"{100 * value:.1f} %"
+
+
+def _cm(value: float | None) -> str:
+    return "n/a" if value is None else f"{value:.1f} cm"
 
 
 if __name__ == "__main__":

@@ -273,18 +273,28 @@ def refit_base(
     for name in ("policy.pt", "policy_curves.png", "var_curves.png"):
         if (base.folder / name).is_file():
             shutil.copy(base.folder / name, staging / name)
-    episodes = eval_episodes_per_intent or int(recipe.get("eval_episodes_per_intent", 25))
-    evaluation = evaluate_in_rooms(
-        staging / "var.pt", staging / "policy.pt", recipe.get("eval_rooms", [TRAINING_ROOM, *HELD_OUT_ROOMS]),
-        episodes_per_intent=episodes, seed=int(recipe.get("seed", 0)) + EVALUATION_SEED_OFFSET,
-        progress=progress,
-    )  # fmt: skip
+    evaluation = evaluate_as_recorded(staging, recipe, eval_episodes_per_intent, progress)
     record = _refit_record(base, front_end, result.report, evaluation)
     _write_record(staging, record)
-    folder = out_root / world
+    _put_in_place(staging, out_root / world)
+    return record
+
+
+def evaluate_as_recorded(
+    folder: Path, recipe: dict[str, Any], episodes_per_intent: int | None, progress: bool
+) -> dict[str, dict[str, dict[str, Any]]]:
+    """The folder's VAR + policy evaluated in the rooms of a base's recipe, with its episodes and seed (so a
+    changed base is scored on the episodes the old one was)."""
+    return evaluate_in_rooms(
+        folder / "var.pt", folder / "policy.pt", recipe.get("eval_rooms", [TRAINING_ROOM, *HELD_OUT_ROOMS]),
+        episodes_per_intent=episodes_per_intent or int(recipe.get("eval_episodes_per_intent", 25)),
+        seed=int(recipe.get("seed", 0)) + EVALUATION_SEED_OFFSET, progress=progress,
+    )  # fmt: skip
+
+
+def _put_in_place(staging: Path, folder: Path) -> None:
     shutil.rmtree(folder, ignore_errors=True)
     staging.rename(folder)
-    return record
 
 
 def _refit_record(
@@ -309,6 +319,87 @@ def _refit_record(
             "evaluation": before.get("evaluation"),
             "folder": str(folder),
         },
+    }
+
+
+def replace_policy(
+    world: str,
+    run_dir: Path,
+    out_root: Path,
+    eval_episodes_per_intent: int | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """A world's base model with the finished policy of `run_dir` (`varbot rl train --var <base>/var.pt`):
+    the same VAR, the run's policy and curves, evaluated again in the rooms of the record with its seed,
+    written to `out_root/<world>/` with its record (the policy's part of the one before kept under
+    `before_policy_replaced`). Households that started from the old base keep their own model versions."""
+    from learning.rl.checkpoints import compact_policy_checkpoint
+
+    base = find_base(world)
+    run_dir = Path(run_dir)
+    summary_path = run_dir / "summary.json"
+    if not summary_path.is_file():
+        raise ValueError(f"{run_dir} holds no finished policy run (no summary.json); finish it with --resume")
+    config = json.loads((run_dir / "config.json").read_text())  # the run's settings, with its VAR's path
+    _check_trained_on_base(base, config)
+    staging = out_root / f".{world}.policy"
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    shutil.copy(base.var_path, staging / "var.pt")
+    compact_policy_checkpoint(run_dir / "checkpoint.pt", staging / "policy.pt")
+    curves = {"var_curves.png": base.folder / "var_curves.png", "policy_curves.png": run_dir / "curves.png"}
+    for name, source in curves.items():
+        if source.is_file():
+            shutil.copy(source, staging / name)
+    evaluation = evaluate_as_recorded(
+        staging, base.record.get("recipe", {}), eval_episodes_per_intent, progress
+    )
+    summary = json.loads(summary_path.read_text())
+    _write_record(staging, _replaced_policy_record(base, run_dir, config, summary, evaluation))
+    _put_in_place(staging, out_root / world)
+    return json.loads((out_root / world / RECORD).read_text())
+
+
+def _check_trained_on_base(base: BaseModel, config: dict[str, Any]) -> None:
+    """A policy's reward and goals come from the VAR it trained with: it only works beside that VAR."""
+    if config.get("world") != base.world:
+        raise ValueError(f"the policy was trained in the {config.get('world')} world, not {base.world}")
+    var_path = Path(config.get("var_path") or "")
+    var_path = var_path if var_path.is_file() else REPO_ROOT / var_path  # a path relative to the repository
+    if not var_path.is_file() or _digest(var_path) != _digest(base.var_path):
+        raise ValueError(
+            f"the policy was trained with the VAR {config.get('var_path')}, not the {base.world} base's "
+            f"{base.var_path}; train it with `varbot rl train --var {base.var_path}`"
+        )
+
+
+def _digest(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+RUN_ONLY_KEYS = ("var_path", "init_policy")  # a policy run's config: where it started, not how it trains
+
+
+def _replaced_policy_record(
+    base: BaseModel, run_dir: Path, config: dict[str, Any], summary: dict[str, Any], evaluation: dict
+) -> dict[str, Any]:
+    before = base.record
+    policy_keys = ("policy_config", "policy_env_steps", "policy_recent_success_in_training", "evaluation")
+    command = ["varbot", "models", "replace-policy", *sys.argv[3:]] if "replace-policy" in sys.argv else None
+    return {
+        **{key: value for key, value in before.items() if key != "before_policy_replaced"},
+        "policy_config": {key: value for key, value in config.items() if key not in RUN_ONLY_KEYS},
+        "policy_env_steps": summary["env_steps"],
+        "policy_recent_success_in_training": summary["recent_success"],
+        "evaluation": evaluation,
+        "policy_replaced": {
+            "run_dir": str(run_dir),
+            "trained_with": {key: config.get(key) for key in RUN_ONLY_KEYS},
+            "run_time_s": summary.get("time_s"),
+            "command": " ".join(command) if command else None,
+            "replaced_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        },
+        "before_policy_replaced": {key: before.get(key) for key in policy_keys},
     }
 
 

@@ -1,4 +1,5 @@
-"""`varbot worker --queue training|robot` and `varbot models build-base|adopt|refit-front-end|show`.
+"""`varbot worker --queue training|robot` and `varbot models …` (build-base, adopt, refit-front-end,
+replace-policy, show).
 
 Heavy imports happen inside the commands."""
 
@@ -218,6 +219,33 @@ def refit_front_end(
     )
 
 
+@models_app.command("replace-policy")
+def replace_policy(
+    world: Annotated[str, typer.Option(help="kuka, kinova or turtlebot")],
+    run_dir: Annotated[
+        Path,
+        typer.Option(exists=True, file_okay=False, help="a finished `varbot rl train --var BASE/var.pt`"),
+    ],
+    eval_episodes_per_intent: Annotated[
+        int | None, typer.Option(min=1, help="default: the base model's own recipe's")
+    ] = None,
+    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+) -> None:
+    """Give a world's base model another policy trained on its VAR: the same VAR, the run's policy and
+    curves, evaluated again in every room of its record (the old policy's figures are kept in the record)."""
+    import json
+
+    from core.paths import data_dir
+    from worker.base_models import BaseModelMissing
+    from worker.base_models import replace_policy as replace
+
+    try:
+        record = replace(world, run_dir, out or data_dir() / "base_models", eval_episodes_per_intent)
+    except (ValueError, FileNotFoundError, BaseModelMissing) as refused:
+        raise typer.BadParameter(str(refused)) from None
+    typer.echo(json.dumps({"evaluation": record["evaluation"]}, indent=2))
+
+
 @models_app.command("show")
 def show() -> None:
     """Which base model each simulated world would start from."""
@@ -233,6 +261,8 @@ def show() -> None:
             if "refit" in record:
                 refitted = record["refit"].get("refitted_at", "")
                 front_end += f", refitted {refitted} from {record['before_refit']['front_end']}"
+            if "policy_replaced" in record:
+                front_end += f"; policy replaced {record['policy_replaced']['replaced_at']}"
             typer.echo(f"{world}: {base.folder} ({made}; trained in rooms: {rooms}; front end: {front_end})")
         except BaseModelMissing as missing:
             typer.echo(f"{world}: {missing}")

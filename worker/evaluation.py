@@ -28,6 +28,8 @@ class ModelScore:
     sim_success_by_intent: list[float] | None = None
     # per intent: how many tries ended at each intent's object, the last column at none (between or off them)
     sim_final_views: list[list[int]] | None = None
+    # per intent: the median distance (m) to its object at the end of the tries that ended at no object
+    sim_missed_by_m: list[float | None] | None = None
     sim_note: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
@@ -70,7 +72,7 @@ def score_model(
     elif goals is None:
         score.sim_note = note
     else:
-        from learning.rl.evaluate import evaluate
+        from learning.rl.evaluate import evaluate, median_miss_by_intent
         from learning.rl.ppo import load_policy
 
         policy, payload = load_policy(policy_path)
@@ -96,6 +98,7 @@ def score_model(
         score.sim_episodes = len(result.episodes)
         score.sim_success_by_intent = [None if math.isnan(x) else float(x) for x in result.success_by_intent]
         score.sim_final_views = result.final_view_by_intent
+        score.sim_missed_by_m = median_miss_by_intent(result.episodes, len(result.final_view_by_intent))
     return score
 
 

@@ -259,6 +259,17 @@ def final_view_counts(results: list[EpisodeResult], num_intents: int) -> list[li
     return counts.tolist()
 
 
+def median_miss_by_intent(results: list[EpisodeResult], num_intents: int) -> list[float | None]:
+    """Per intent, the median distance (m) from the robot to its target at the end of the tries that ended
+    at no object: a few centimetres is a robot that stopped just beside its block, tens of centimetres one
+    that ended elsewhere on the table. None where no try ended at no object."""
+    missed: list[list[float]] = [[] for _ in range(num_intents)]
+    for r in results:
+        if r.final_heard == NO_SOUND:
+            missed[r.intent].append(r.final_distance)
+    return [float(np.median(distances)) if distances else None for distances in missed]
+
+
 def _write_gif(frames: list[np.ndarray], path: Path, scale: int = 2) -> str:
     from PIL import Image
 

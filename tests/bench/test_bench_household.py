@@ -60,6 +60,9 @@ def _run(stack: bench.Stack, clips: Path, out: Path, *options: str) -> dict:
             success, nowhere = row[f"success_{when}"], row[f"ended_at_no_object_{when}"]
             assert (success is None) == (nowhere is None), row
             assert success is None or 0 <= nowhere <= 1 - success + 1e-9, "a success ended at its object"
+            missed_by = row[f"missed_by_cm_{when}"]
+            assert (missed_by is None) == (not nowhere), "measured where some try ended at no object"
+            assert missed_by is None or missed_by > 0, "no object lies where its own object is"
     return result
 
 
@@ -118,6 +121,9 @@ def test_each_commands_failures_are_told_apart_by_whether_the_robot_ended_at_no_
     assert bench.share_at_no_object(final_views, 1) is None, "no tries"
     assert bench.share_at_no_object(final_views, 2) == 0.0, "its two failures ended at another object"
     assert bench.share_at_no_object(None, 0) is None, "not measured"
+    assert bench.missed_by_cm([0.0412, None], 0) == 4.1, "the median miss in cm"
+    assert bench.missed_by_cm([0.0412, None], 1) is None, "every try ended at an object"
+    assert bench.missed_by_cm(None, 0) is None, "not measured"
 
 
 def test_labelling_goes_on_past_the_triplet_target_until_every_command_has_an_is_answer() -> None:

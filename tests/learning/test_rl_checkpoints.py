@@ -38,9 +38,9 @@ def fixed_inputs(image_size: int, batch: int = 4) -> dict[str, torch.Tensor]:
 def act(policy: Policy, x: dict[str, torch.Tensor]) -> tuple[torch.Tensor, torch.Tensor]:
     with torch.no_grad():
         goal = policy.encode_goal(x["goal"])
-        batch = len(goal)
+        batch, view = len(goal), policy.view_of(x["images"])
         mean, value, _ = policy.step(
-            x["images"], x["var_embedding"], x["state"], goal, policy.initial_state(batch), torch.ones(batch)
+            view, x["var_embedding"], x["state"], goal, policy.initial_state(batch), torch.ones(batch)
         )
     return mean, value
 
@@ -114,7 +114,7 @@ def test_a_compacted_policy_keeps_the_current_format_and_acts_the_same(tmp_path:
     stored = torch.load(compact, map_location="cpu", weights_only=False)
     assert stored["format_version"] == FORMAT_VERSION, "a compacted file says which format it is"
     assert not {"optimizer", "rng", "stats"} & set(stored), "only what acting and improving need"
-    inputs = fixed_inputs(load_policy(SHIPPED_KUKA_POLICY)[0].config.policy_image_size)
+    inputs = fixed_inputs(load_policy(SHIPPED_KUKA_POLICY)[0].config.image_size)  # as rendered
     for before, after in zip(
         act(load_policy(SHIPPED_KUKA_POLICY)[0], inputs), act(load_policy(compact)[0], inputs), strict=True
     ):

@@ -17,8 +17,8 @@ from learning.rl.baselines import method_config
 from learning.rl.checkpoints import FORMAT_VERSION
 from learning.rl.curriculum import curriculum_weights
 from learning.rl.env_groups import env_rooms
-from learning.rl.envs import make_env_fn, world_id
-from learning.rl.evaluate import deal, episode_schedule, evaluate
+from learning.rl.envs import NO_SOUND, make_env_fn, world_id
+from learning.rl.evaluate import EpisodeResult, deal, episode_schedule, evaluate, median_miss_by_intent
 from learning.rl.frozen_var import load_frozen_var
 from learning.rl.ppo import PPOConfig, PPOTrainer, Rollout, RolloutStep, load_policy
 from learning.rl.rewards import ClipBank
@@ -159,6 +159,17 @@ def test_a_watcher_sees_env_0_after_every_step_and_watching_changes_nothing(
     assert len({json.dumps(pose["joints"]) for _, pose in seen}) > 5, "the arm moves from step to step"
     assert torch.equal(watched.actions, unwatched.actions)
     assert torch.equal(watched.rewards, unwatched.rewards)
+
+
+def test_a_miss_is_measured_over_the_tries_that_ended_at_no_object_only() -> None:
+    def ended(intent: int, heard: int, distance: float) -> EpisodeResult:
+        return EpisodeResult(intent, 0, 0, heard == intent, 100, None, distance, heard)
+
+    episodes = [
+        ended(0, NO_SOUND, 0.03), ended(0, NO_SOUND, 0.05), ended(0, 0, 0.01), ended(0, 1, 0.10),
+        ended(1, 1, 0.0), ended(1, 2, 0.1),
+    ]  # fmt: skip
+    assert median_miss_by_intent(episodes, 3) == [pytest.approx(0.04), None, None]
 
 
 def test_evaluation_plays_the_promised_episodes_per_intent(

@@ -229,3 +229,78 @@ def test_build_base_takes_ppo_settings_as_name_value_pairs_and_refuses_what_ppo_
         ppo_settings(["policy_eyes=var"])
     with pytest.raises(typer.BadParameter, match="sees the real view"):
         ppo_settings(["policy_view=var", "policy_colour_jitter=0.3"])
+
+
+TINY_PPO = {
+    "num_envs": 2, "env_groups": 1, "num_steps": 12, "num_minibatches": 2, "update_epochs": 1,
+    "max_episode_steps": 5, "policy_image_size": 16,
+}  # fmt: skip
+
+
+def _tiny_policy_run(run_dir: Path, var: Path, image_size: int, **settings: object) -> Path:
+    from learning.rl.ppo import PPOConfig
+    from learning.rl.run import train_run
+
+    config = PPOConfig(image_size=image_size, total_steps=24, room="randomised", **TINY_PPO, **settings)
+    train_run(config, run_dir, var, progress=False)
+    return run_dir
+
+
+def test_a_base_model_takes_a_policy_trained_on_its_var_and_keeps_the_old_policys_figures(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`varbot models replace-policy`: the same VAR file, the run's policy and curves, evaluated again in the
+    record's rooms with its seed; the old policy's settings and evaluation stay in the record."""
+    from learning.rl.checkpoints import read_policy_checkpoint
+    from learning.sounds.build import build_corpora
+    from worker.base_models import BaseRecipe, build_base
+
+    build_corpora(["wordset"], profile="small", progress=False, log=lambda _: None)
+    recipe = BaseRecipe(
+        views=200, image_size=16, var_max_steps=3, policy_steps=24, eval_episodes_per_intent=1,
+        eval_rooms=("unseen_room",), ppo_settings=TINY_PPO,
+    )  # fmt: skip
+    build_base(recipe, tmp_path / "built", progress=False)
+    old = tmp_path / "built" / "kuka"
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "built"))
+    run = _tiny_policy_run(tmp_path / "run", old / "var.pt", 16, policy_view="var", goal_match=True)
+    replace = ["models", "replace-policy", "--world", "kuka", "--run-dir", str(run)]
+    result = CliRunner().invoke(app, [*replace, "--out", str(tmp_path / "new")])
+    assert result.exit_code == 0, result.output
+
+    new = tmp_path / "new" / "kuka"
+    assert (new / "var.pt").read_bytes() == (old / "var.pt").read_bytes()
+    assert read_policy_checkpoint(new / "policy.pt")["policy_config"]["view_var"] is not None
+    assert (new / "policy_curves.png").read_bytes() == (run / "curves.png").read_bytes()
+    record = json.loads((new / "base.json").read_text())
+    before = json.loads((old / "base.json").read_text())
+    assert record["policy_config"]["policy_view"] == "var" and "var_path" not in record["policy_config"]
+    assert record["before_policy_replaced"]["policy_config"] == before["policy_config"]
+    assert record["before_policy_replaced"]["evaluation"] == before["evaluation"]
+    assert set(record["evaluation"]["unseen_room"]) == set(before["evaluation"]["unseen_room"])
+    assert record["policy_env_steps"] == 24 and record["var_steps"] == before["var_steps"]
+    assert record["policy_replaced"]["trained_with"]["var_path"] == str(old / "var.pt")
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "new"))
+    shown = CliRunner().invoke(app, ["models", "show"]).output
+    assert f"policy replaced {record['policy_replaced']['replaced_at']}" in shown
+
+
+def test_a_policy_trained_on_another_var_or_not_finished_is_refused_and_nothing_is_written(
+    tmp_path: Path,
+) -> None:
+    """The shipped base is the one found here; a policy trained beside another VAR would be paid by a
+    reward its VAR no longer gives."""
+    from learning.sounds.build import build_corpora
+
+    build_corpora(["wordset"], profile="small", progress=False, log=lambda _: None)
+    other_var = tmp_path / "other_var.pt"
+    other_var.write_bytes((SHIPPED_DIR / "turtlebot" / "var.pt").read_bytes())
+    run = _tiny_policy_run(tmp_path / "run", other_var, 96)
+    replace = ["models", "replace-policy", "--world", "kuka", "--out", str(tmp_path / "new")]
+    result = CliRunner().invoke(app, [*replace, "--run-dir", str(run)], env={"COLUMNS": "300"})
+    assert result.exit_code == 2 and "was trained with the VAR" in result.output
+    assert "train it with `varbot rl train --var" in result.output
+    (tmp_path / "unfinished").mkdir()
+    result = CliRunner().invoke(app, [*replace, "--run-dir", str(tmp_path / "unfinished")])
+    assert result.exit_code == 2 and "no finished policy run" in result.output
+    assert not (tmp_path / "new" / "kuka").exists()
