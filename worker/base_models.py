@@ -386,6 +386,7 @@ def _replaced_policy_record(
     before = base.record
     policy_keys = ("policy_config", "policy_env_steps", "policy_recent_success_in_training", "evaluation")
     command = ["varbot", "models", "replace-policy", *sys.argv[3:]] if "replace-policy" in sys.argv else None
+    room = world_room(config["room"])  # a run names its room only: its ranges are those of the code it ran
     return {
         **{key: value for key, value in before.items() if key != "before_policy_replaced"},
         "policy_config": {key: value for key, value in config.items() if key not in RUN_ONLY_KEYS},
@@ -395,6 +396,7 @@ def _replaced_policy_record(
         "policy_replaced": {
             "run_dir": str(run_dir),
             "trained_with": {key: config.get(key) for key in RUN_ONLY_KEYS},
+            "policy_room_ranges": asdict(room) if isinstance(room, RoomRanges) else None,
             "run_time_s": summary.get("time_s"),
             "command": " ".join(command) if command else None,
             "replaced_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),

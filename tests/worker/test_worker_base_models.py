@@ -109,7 +109,10 @@ def test_show_names_each_worlds_base_model_with_its_rooms_and_front_end(
     result = CliRunner().invoke(app, ["models", "show"])
     assert result.exit_code == 0, result.output
     kuka = json.loads((SHIPPED / "base.json").read_text())
-    front_end = f"speech-embedding-fast, refitted {kuka['refit']['refitted_at']} from speech-embedding"
+    front_end = (
+        f"speech-embedding-fast, refitted {kuka['refit']['refitted_at']} from speech-embedding; "
+        f"policy replaced {kuka['policy_replaced']['replaced_at']}"
+    )
     shown = f"kuka: {SHIPPED} ({kuka['built_at']}; trained in rooms: randomised; front end: {front_end})"
     assert shown in result.output
     turtlebot = SHIPPED_DIR / "turtlebot"
@@ -280,6 +283,7 @@ def test_a_base_model_takes_a_policy_trained_on_its_var_and_keeps_the_old_policy
     assert set(record["evaluation"]["unseen_room"]) == set(before["evaluation"]["unseen_room"])
     assert record["policy_env_steps"] == 24 and record["var_steps"] == before["var_steps"]
     assert record["policy_replaced"]["trained_with"]["var_path"] == str(old / "var.pt")
+    assert record["policy_replaced"]["policy_room_ranges"] == record["room_ranges"], "today's ranges both"
     monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "new"))
     shown = CliRunner().invoke(app, ["models", "show"]).output
     assert f"policy replaced {record['policy_replaced']['replaced_at']}" in shown
