@@ -263,20 +263,17 @@ def refit_base(
         **refit_settings,
     )  # fmt: skip
     result = refit_front_end(teacher, config, progress=progress)
-    staging = out_root / f".{world}.refit"
-    shutil.rmtree(staging, ignore_errors=True)
-    staging.mkdir(parents=True)
     extra = {
         key: teacher_payload[key] for key in ("manifest_hash", "sound_set", "world") if key in teacher_payload
     }
-    save_var(result.var, staging / "var.pt", **extra, refit=result.report)
-    for name in ("policy.pt", "policy_curves.png", "var_curves.png"):
-        if (base.folder / name).is_file():
-            shutil.copy(base.folder / name, staging / name)
-    evaluation = evaluate_as_recorded(staging, recipe, eval_episodes_per_intent, progress)
-    record = _refit_record(base, front_end, result.report, evaluation)
-    _write_record(staging, record)
-    _put_in_place(staging, out_root / world)
+    with _staged(out_root / world) as staging:
+        save_var(result.var, staging / "var.pt", **extra, refit=result.report)
+        for name in ("policy.pt", "policy_curves.png", "var_curves.png"):
+            if (base.folder / name).is_file():
+                shutil.copy(base.folder / name, staging / name)
+        evaluation = evaluate_as_recorded(staging, recipe, eval_episodes_per_intent, progress)
+        record = _refit_record(base, front_end, result.report, evaluation)
+        _write_record(staging, record)
     return record
 
 
@@ -292,7 +289,18 @@ def evaluate_as_recorded(
     )  # fmt: skip
 
 
-def _put_in_place(staging: Path, folder: Path) -> None:
+@contextmanager
+def _staged(folder: Path) -> Iterator[Path]:
+    """A hidden folder beside `folder` to write a base model into: it replaces `folder` when the block ends,
+    and is removed if the block fails, so a failed build leaves the old base and no half-written one."""
+    staging = folder.with_name(f".{folder.name}.staging")
+    shutil.rmtree(staging, ignore_errors=True)
+    staging.mkdir(parents=True)
+    try:
+        yield staging
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
     shutil.rmtree(folder, ignore_errors=True)
     staging.rename(folder)
 
@@ -342,21 +350,18 @@ def replace_policy(
         raise ValueError(f"{run_dir} holds no finished policy run (no summary.json); finish it with --resume")
     config = json.loads((run_dir / "config.json").read_text())  # the run's settings, with its VAR's path
     _check_trained_on_base(base, config)
-    staging = out_root / f".{world}.policy"
-    shutil.rmtree(staging, ignore_errors=True)
-    staging.mkdir(parents=True)
-    shutil.copy(base.var_path, staging / "var.pt")
-    compact_policy_checkpoint(run_dir / "checkpoint.pt", staging / "policy.pt")
-    curves = {"var_curves.png": base.folder / "var_curves.png", "policy_curves.png": run_dir / "curves.png"}
-    for name, source in curves.items():
-        if source.is_file():
-            shutil.copy(source, staging / name)
-    evaluation = evaluate_as_recorded(
-        staging, base.record.get("recipe", {}), eval_episodes_per_intent, progress
-    )
     summary = json.loads(summary_path.read_text())
-    _write_record(staging, _replaced_policy_record(base, run_dir, config, summary, evaluation))
-    _put_in_place(staging, out_root / world)
+    curves = {"var_curves.png": base.folder / "var_curves.png", "policy_curves.png": run_dir / "curves.png"}
+    with _staged(out_root / world) as staging:
+        shutil.copy(base.var_path, staging / "var.pt")
+        compact_policy_checkpoint(run_dir / "checkpoint.pt", staging / "policy.pt")
+        for name, source in curves.items():
+            if source.is_file():
+                shutil.copy(source, staging / name)
+        evaluation = evaluate_as_recorded(
+            staging, base.record.get("recipe", {}), eval_episodes_per_intent, progress
+        )
+        _write_record(staging, _replaced_policy_record(base, run_dir, config, summary, evaluation))
     return json.loads((out_root / world / RECORD).read_text())
 
 

@@ -308,3 +308,21 @@ def test_a_policy_trained_on_another_var_or_not_finished_is_refused_and_nothing_
     result = CliRunner().invoke(app, [*replace, "--run-dir", str(tmp_path / "unfinished")])
     assert result.exit_code == 2 and "no finished policy run" in result.output
     assert not (tmp_path / "new" / "kuka").exists()
+
+
+def test_a_replacement_that_fails_half_way_leaves_no_half_written_base(tmp_path: Path) -> None:
+    """A run folder whose checkpoint is not a policy: refused while the new base is being written, and
+    neither the base's folder nor its staging copy is left behind."""
+    import torch
+
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.json").write_text(
+        json.dumps({"world": "kuka", "room": "randomised", "var_path": str(SHIPPED / "var.pt")})
+    )
+    (run / "summary.json").write_text(json.dumps({"env_steps": 24, "recent_success": 0.0}))
+    torch.save({"kind": "varbot-var"}, run / "checkpoint.pt")
+    replace = ["models", "replace-policy", "--world", "kuka", "--run-dir", str(run)]
+    result = CliRunner().invoke(app, [*replace, "--out", str(tmp_path / "new")])
+    assert result.exit_code == 2 and "not a varbot policy checkpoint" in result.output
+    assert list((tmp_path / "new").iterdir()) == [], "nothing half-written"
