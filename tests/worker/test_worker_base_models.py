@@ -318,11 +318,11 @@ def test_a_replacement_that_fails_half_way_leaves_no_half_written_base(tmp_path:
     run = tmp_path / "run"
     run.mkdir()
     (run / "config.json").write_text(
-        json.dumps({"world": "kuka", "room": "randomised", "var_path": str(SHIPPED / "var.pt")})
+        json.dumps({"world": "kuka", "room": "randomised", "var_path": str(find_base("kuka").var_path)})
     )
     (run / "summary.json").write_text(json.dumps({"env_steps": 24, "recent_success": 0.0}))
     torch.save({"kind": "varbot-var"}, run / "checkpoint.pt")
     replace = ["models", "replace-policy", "--world", "kuka", "--run-dir", str(run)]
-    result = CliRunner().invoke(app, [*replace, "--out", str(tmp_path / "new")])
+    result = CliRunner().invoke(app, [*replace, "--out", str(tmp_path / "new")], env={"COLUMNS": "300"})
     assert result.exit_code == 2 and "not a varbot policy checkpoint" in result.output
     assert list((tmp_path / "new").iterdir()) == [], "nothing half-written"
