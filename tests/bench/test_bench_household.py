@@ -150,6 +150,21 @@ def test_attempts_come_in_rounds_and_past_the_target_only_the_commands_never_sho
     assert attempts_only.next_request(0, 0, answers, WORDS) == {"count": 4, "random_share": 0.0, "seed": None}
 
 
+def test_near_the_target_only_the_commands_never_shown_are_tried_so_their_answers_stay_within_it() -> None:
+    six_clips_each = {clip: clip % 4 for clip in range(24)}
+    assert bench.triplets_per_is_answer(six_clips_each) == 6 * 18, "a yes: 6 positives, each against 18"
+    assert bench.triplets_per_is_answer({1: 0, 2: 0, 3: 1}) == 2, "the command with the most recordings"
+    plan = bench.Labelling("mixed", 1000, 0, 30, 4, 0.25, triplets_per_is_answer=108)
+    answers = bench.Answers(commands=4)
+    answers.shown.update({0, 3})
+    assert not plan.near_target(783, answers) and plan.near_target(784, answers), "1000 - 2 x 108"
+    near = plan.next_request(asked=8, triplets=800, answers=answers, names=WORDS)
+    assert near["commands"] == [WORDS[1], WORDS[2]] and near["random_share"] == 0.0
+    answers.shown.update({1, 2})
+    assert not plan.near_target(999, answers), "every command shown: on to the target itself"
+    assert plan.next_request(asked=10, triplets=999, answers=answers, names=WORDS)["count"] == 4
+
+
 def test_the_policys_training_curve_is_summed_up_by_the_mean_of_each_quarter_of_its_updates() -> None:
     assert bench.mean_by_quarter([0.2, 0.4, 0.5, 0.5, 0.6, None, 0.8, 1.0]) == [0.3, 0.5, 0.6, 0.9]
     assert bench.mean_by_quarter([0.7]) == [None, None, None, 0.7], "one update: its point is the last"
