@@ -298,8 +298,9 @@ class PresetPublic(RunParams):
 
     minutes_here: float = Field(
         description="about how many minutes a fine-tune with these parameters takes on a 2-core CPU with "
-        "about 4,000 triplets (VAR fine-tune, policy self-improvement and evaluation)"
+        "`budget_triplets` household triplets (VAR fine-tune, policy self-improvement and evaluation)"
     )
+    budget_triplets: int = Field(description="the household triplets the budget is for")
     measured_by: str = Field(description="the bench result the per-part costs come from")
 
 

@@ -44,14 +44,17 @@ PRESETS: dict[str, dict[str, Any]] = {
         seed=0,
     ),
 }
-# What a fine-tune's parts cost on this machine (2 CPU cores, about 4,000 household triplets from about 760
+# What a fine-tune's parts cost on this machine (2 CPU cores, 4,034 household triplets from about 760
 # answers, the speech-embedding Kuka base), from the standard preset's run by bench/household.py
 # (bench/results/household_4000_triplets.json, stages_s, load 0.8 -> 2.8): 55.51 s for 20 VAR epochs,
 # 67.96 s for 20,000 policy steps, 61.96 s for 100 test episodes of each model. Each stage
 # also starts workers and loads models once, which these per-unit costs spread over its units, so they
 # over-predict a longer run: the thorough preset's run (bench/results/household_thorough.json) took
-# 8.8 min where they predict 9.6 min.
+# 8.8 min where they predict 9.6 min. A VAR epoch's cost grows with the triplets it trains on: the thorough
+# preset's runs from 1,001 to 1,096 triplets (bench/results/household_shipped_varview_*.json) took 6.7 to
+# 8.9 min where these costs, scaled to their triplets, predict 8.4 to 8.5 min.
 SECONDS_PER_VAR_EPOCH = 55.51 / 20
+MEASURED_TRIPLETS = 4034  # that run's household triplets
 MEASURED_REPLAY_FRACTION = 0.25  # that run's replay: an epoch's cost grows with its replayed triplets
 SECONDS_PER_POLICY_STEP = 67.96 / 20_000
 SECONDS_PER_TEST_EPISODE = 61.96 / 100
@@ -68,27 +71,34 @@ def resolve_params(preset: str, overrides: dict[str, Any]) -> RunParams:
         raise Invalid(f"invalid run parameters: {problems}") from exc
 
 
-def seconds_per_var_epoch(replay_fraction: float) -> float:
-    """A VAR epoch costs in proportion to its training triplets: the household's plus the replayed ones,
-    1 / (1 - replay_fraction) times the household's in all."""
-    return SECONDS_PER_VAR_EPOCH * (1 - MEASURED_REPLAY_FRACTION) / (1 - replay_fraction)
+def seconds_per_var_epoch(replay_fraction: float, triplets: int = MEASURED_TRIPLETS) -> float:
+    """A VAR epoch costs in proportion to its training triplets: the household's `triplets` plus the
+    replayed ones, 1 / (1 - replay_fraction) times the household's in all."""
+    measured_training_triplets = MEASURED_TRIPLETS / (1 - MEASURED_REPLAY_FRACTION)
+    return SECONDS_PER_VAR_EPOCH * triplets / (1 - replay_fraction) / measured_training_triplets
 
 
-def minutes_here(params: RunParams) -> float:
-    """About how long a fine-tune with `params` takes on this machine with about 4,000 triplets: VAR
+def minutes_here(params: RunParams, triplets: int = MEASURED_TRIPLETS) -> float:
+    """About how long a fine-tune with `params` takes on this machine with the household's `triplets`: VAR
     epochs, policy steps and test episodes at the costs measured above."""
     seconds = (
-        params.var_epochs * seconds_per_var_epoch(params.replay_fraction)
+        params.var_epochs * seconds_per_var_epoch(params.replay_fraction, triplets)
         + params.policy_steps * SECONDS_PER_POLICY_STEP
         + params.eval_episodes * SECONDS_PER_TEST_EPISODE
     )
     return round(seconds / 60, 1)
 
 
-def published_presets() -> dict[str, PresetPublic]:
+def published_presets(triplets: int | None = None) -> dict[str, PresetPublic]:
+    """The presets with their budgets for a household with `triplets` (default: as many as the run the
+    costs were measured on)."""
+    budget_triplets = MEASURED_TRIPLETS if triplets is None else triplets
     return {
         name: PresetPublic(
-            **params, minutes_here=minutes_here(RunParams(**params)), measured_by=BUDGET_MEASURED_BY
+            **params,
+            minutes_here=minutes_here(RunParams(**params), budget_triplets),
+            budget_triplets=budget_triplets,
+            measured_by=BUDGET_MEASURED_BY,
         )
         for name, params in PRESETS.items()
     }

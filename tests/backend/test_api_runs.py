@@ -83,6 +83,15 @@ def test_presets_are_published(member) -> None:
     assert presets["standard"]["measured_by"] == "bench/results/household_4000_triplets.json"
 
 
+def test_a_presets_budget_is_for_the_households_triplets_when_it_gives_them(member) -> None:
+    measured = member.client.get("/api/v1/runs/presets").json()["thorough"]
+    fewer = member.client.get("/api/v1/runs/presets", params={"triplets": 1000}).json()["thorough"]
+    assert measured["budget_triplets"] == 4034 and fewer["budget_triplets"] == 1000
+    assert fewer["minutes_here"] < measured["minutes_here"], "a VAR epoch over fewer triplets costs less"
+    refused = member.client.get("/api/v1/runs/presets", params={"triplets": -1})
+    assert refused.status_code == 422 and "triplets" in refused.text
+
+
 def test_fine_tuning_is_refused_without_enough_triplets(admin, robot) -> None:
     response = admin.client.post("/api/v1/runs", json={"robot_id": robot, "kind": "finetune"})
     assert response.status_code == 409

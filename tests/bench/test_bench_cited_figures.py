@@ -37,10 +37,11 @@ def test_the_presets_budgets_come_from_the_household_runs_they_cite():
     }
     stages = standard["run"]["stages_s"]
     assert standard["run"]["params"]["replay_fraction"] == runs.MEASURED_REPLAY_FRACTION
+    assert standard["labelling"]["triplets"] == runs.MEASURED_TRIPLETS
     assert runs.minutes_here(RunParams(**standard["run"]["params"])) == round(sum(stages.values()) / 60, 1)
     thorough = json.loads((REPO_ROOT / "bench" / "results" / "household_thorough.json").read_text())
     measured = sum(thorough["run"]["stages_s"].values()) / 60
-    predicted = runs.minutes_here(RunParams(**thorough["run"]["params"]))
+    predicted = runs.minutes_here(RunParams(**thorough["run"]["params"]), thorough["labelling"]["triplets"])
     # per-unit costs spread each stage's start-up over its units, so they over-predict a longer run a little
     assert 0 <= (predicted - measured) / measured < 0.10, "the costs predict the thorough run within 10 %"
 
@@ -52,3 +53,5 @@ def test_a_var_epoch_is_budgeted_in_proportion_to_its_triplets_household_and_rep
     assert measured == pytest.approx(runs.SECONDS_PER_VAR_EPOCH)
     assert runs.seconds_per_var_epoch(0.5) == pytest.approx(1.5 * measured), "2 per household one"
     assert runs.seconds_per_var_epoch(0.0) == pytest.approx(0.75 * measured)
+    quarter = runs.MEASURED_TRIPLETS / 4
+    assert runs.seconds_per_var_epoch(runs.MEASURED_REPLAY_FRACTION, quarter) == pytest.approx(measured / 4)

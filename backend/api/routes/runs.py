@@ -25,9 +25,14 @@ _POLL_WHILE_SUBSCRIBED_S = 5.0
 
 
 @router.get("/presets", response_model=dict[str, schemas.PresetPublic])
-def presets() -> dict[str, schemas.PresetPublic]:
-    """The parameter sets behind "quick", "standard" and "thorough", each with its budget in minutes."""
-    return runs.published_presets()
+def presets(
+    triplets: Annotated[
+        int | None, Query(ge=0, le=100_000_000, description="the household's triplets (default: 4,034)")
+    ] = None,
+) -> dict[str, schemas.PresetPublic]:
+    """The parameter sets behind "quick", "standard" and "thorough", each with its budget in minutes for a
+    household with `triplets` triplets (a VAR epoch's cost grows with them)."""
+    return runs.published_presets(triplets)
 
 
 @router.post(

@@ -10,15 +10,25 @@ function formatMinutes(minutes) {
   return whole === 1 ? "1 minute" : `${whole} minutes`;
 }
 
+async function householdTriplets(robot) {
+  if (!robot) return null;
+  const stats = await api(`/triplets/stats?robot_id=${robot.id}`);
+  return stats.triplets > 0 ? stats.triplets : null;
+}
+
 async function drawPresets() {
-  const presets = await api("/runs/presets");
+  const triplets = await householdTriplets(picker.current());
+  const presets = await api(triplets === null ? "/runs/presets" : `/runs/presets?triplets=${triplets}`);
   const box = $("presets");
+  const chosen = new FormData($("start")).get("preset") || "quick";
   box.innerHTML = "";
   for (const [name, params] of Object.entries(presets)) {
     const id = `preset-${name}`;
-    const hint = `about ${formatMinutes(params.minutes_here)} on a 2-core computer: ${params.var_epochs} VAR epochs, ${params.policy_steps.toLocaleString()} policy steps, ${params.eval_episodes} test episodes`;
+    const count = `${params.budget_triplets.toLocaleString()} triplet${params.budget_triplets === 1 ? "" : "s"}`;
+    const labels = triplets === null ? `about ${count}` : `this robot's ${count}`;
+    const hint = `about ${formatMinutes(params.minutes_here)} on a 2-core computer with ${labels}: ${params.var_epochs} VAR epochs, ${params.policy_steps.toLocaleString()} policy steps, ${params.eval_episodes} test episodes`;
     box.append(element("div", { class: "row choice" },
-      element("input", { type: "radio", name: "preset", id, value: name, checked: name === "quick", style: "width:auto;min-height:0" }),
+      element("input", { type: "radio", name: "preset", id, value: name, checked: name === chosen, style: "width:auto;min-height:0" }),
       element("label", { for: id, style: "margin:0" }, `${name} `, element("span", { class: "muted", text: `(${hint})` }))));
   }
 }
@@ -97,7 +107,7 @@ async function modelAction(path, done) {
 
 async function main() {
   await startPage("admin", { adminOnly: true });
-  picker = await robotPicker($("robot"), () => drawModels());
+  picker = await robotPicker($("robot"), () => Promise.all([drawModels(), drawPresets()]));
   $("start").addEventListener("submit", async (event) => {
     event.preventDefault();
     const robot = picker.current();
@@ -120,8 +130,8 @@ async function main() {
       const robot = await api("/robots", { method: "POST", json: Object.fromEntries(new FormData(event.target)) });
       say($("robot-message"), `Added ${robot.name}.`, "ok");
       event.target.reset();
-      picker = await robotPicker($("robot"), () => drawModels());
-      await drawRobots();
+      picker = await robotPicker($("robot"), () => Promise.all([drawModels(), drawPresets()]));
+      await Promise.all([drawRobots(), drawPresets()]);
     } catch (error) {
       say($("robot-message"), error.message, "error");
     }
