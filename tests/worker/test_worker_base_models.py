@@ -117,7 +117,10 @@ def test_show_names_each_worlds_base_model_with_its_rooms_and_front_end(
     assert shown in result.output
     turtlebot = SHIPPED_DIR / "turtlebot"
     record = json.loads((turtlebot / "base.json").read_text())
-    front_end = f"speech-embedding-fast, refitted {record['refit']['refitted_at']} from speech-embedding"
+    front_end = (
+        f"speech-embedding-fast, refitted {record['refit']['refitted_at']} from speech-embedding; "
+        f"policy replaced {record['policy_replaced']['replaced_at']}"
+    )
     shown = (
         f"turtlebot: {turtlebot} ({record['built_at']}; trained in rooms: randomised; front end: {front_end})"
     )
