@@ -17,11 +17,12 @@ the fine-tune (the base model) and after it (the fine-tuned model), and moved ba
 fine-tune did to the robot elsewhere, say in the training room.
 
 The simulator plays the person who answers (the snapshot's `sim_heard`: ground truth, in this bench only)
-until the labels give `--triplets` triplets and every command has an *is* answer (as long as `--attempts`
-allows: without one, a command's success cannot be measured). Attempts come in rounds of one per command;
-once the labels are within what showing the commands with no *is* answer yet will add of `--triplets`
-(one such answer adds one command's recordings times all the others' in triplets), the robot is asked
-only for those commands, and no more random views are answered, since every answer adds triplets. Then an
+until every command has an *is* answer (as long as `--attempts` allows: without one, a command's success
+cannot be measured) and one more answer might carry the labels past `--triplets`. Attempts come in rounds
+of one per command; once the labels are within what showing the commands with no *is* answer yet will add
+of `--triplets` (one such answer adds one command's recordings times all the others' in triplets), the
+robot is asked only for those commands, no more random views are answered, and an attempt is answered only
+when it fits under `--triplets` or shows such a command (the others are skipped, as a person may). Then an
 admin starts a fine-tune run (VAR fine-tune with replay → policy self-improvement → evaluation → gate).
 Reported: simulated success with the household's own clips as goals, before (the active base model) and
 after (the candidate) on the same episodes, overall and per command; held-out triplet accuracy; the gate's
@@ -72,6 +73,7 @@ LABELLING = ("attempts", "views", "mixed")
 SIMULATED_KINDS = tuple(kind.value for kind in RobotKind if kind.simulated)
 CLIP_NAME = re.compile(r"^(?P<member>.+?)_(?P<intent>\d+)(?:_(?P<take>[^_]+))?\.wav$", re.IGNORECASE)
 ATTEMPTS_PER_REQUEST = 100  # the API's most per request
+MOST_SKIPPED = 100  # the most attempts GET /attempts/next takes to skip
 console = Console()
 
 
@@ -99,14 +101,10 @@ class Answers:
     attempt_answers: int = 0
     labels: Counter[str] = field(default_factory=Counter)  # verdict -> count
     shown: set[int] = field(default_factory=set)  # commands some answer said a view shows
+    skipped: list[int] = field(default_factory=list)  # attempts left unanswered (their snapshot ids)
 
     def count(self, verdicts: list[str]) -> None:
         self.labels.update(verdicts)
-
-    def enough(self, triplets: int, target: int) -> bool:
-        """Labelling stops at `target` triplets once every command has an *is* answer: a household goes on
-        until each command has an example (without one, its success cannot be measured)."""
-        return triplets >= target and not self.commands_missing
 
     @property
     def commands_missing(self) -> list[int]:
@@ -129,6 +127,7 @@ class Answers:
             "labels_is_not": self.labels["is_not"],
             "is_share": round(self.labels["is"] / total, 4) if total else None,
             "commands_with_an_is_answer": len(self.commands_shown),
+            "attempts_skipped": len(self.skipped),
         }
 
 
@@ -304,16 +303,15 @@ def answer_pairs(
     answers: Answers,
     show: Callable[[int], None],
 ) -> None:
-    """Pairs from GET /labels/next until `done(triplet count)` or until every view is answered; the simulator
-    plays each member: 'is' when the clip names what is in view, else 'is not'. `show` gets the triplet count
-    now and then."""
+    """Pairs from GET /labels/next until `done(triplet count)` (asked before each answer) or until every view
+    is answered; the simulator plays each member: 'is' when the clip names what is in view, else 'is not'.
+    `show` gets the triplet count."""
     while True:
         member = family[answers.pair_answers % len(family)]
-        if answers.pair_answers % 25 == 0:
-            triplets = triplet_stats(member, robot_id)["triplets"]
-            show(triplets)
-            if done(triplets):
-                return
+        triplets = triplet_stats(member, robot_id)["triplets"]
+        show(triplets)
+        if done(triplets):
+            return
         pair = member.get("/api/v1/labels/next", params={"robot_id": robot_id}).json()
         if pair["snapshot"] is None:
             return
@@ -340,17 +338,21 @@ def attempt_answer(offered: dict, names: list[str]) -> dict[str, str]:
 
 
 def answer_attempts(
-    family: list[httpx.Client], robot_id: int, names: list[str], target: int, answers: Answers
+    family: list[httpx.Client], robot_id: int, names: list[str], plan: "Labelling", answers: Answers
 ) -> Counter[str]:
-    """Every unanswered attempt, in the "did it do what I said?" mode, until `answers.enough` says so; what
-    each attempt showed (asked / other / nothing)."""
+    """Every unanswered attempt, in the "did it do what I said?" mode, while `plan.answer_attempt` says
+    another fits; what each attempt showed (asked / other / nothing)."""
     outcomes: Counter[str] = Counter()
-    while not answers.enough(triplet_stats(family[0], robot_id)["triplets"], target):
+    while plan.answer_attempt(triplets := triplet_stats(family[0], robot_id)["triplets"], answers):
         member = family[answers.attempt_answers % len(family)]
-        offered = member.get("/api/v1/attempts/next", params={"robot_id": robot_id}).json()
-        if offered["snapshot"] is None:
-            break
+        skip = answers.skipped[-MOST_SKIPPED:]
+        offered = member.get("/api/v1/attempts/next", params={"robot_id": robot_id, "skip": skip}).json()
+        if offered["snapshot"] is None or offered["snapshot"]["id"] in answers.skipped:
+            break  # none left, or only ones skipped before
         body = attempt_answer(offered, names)
+        if not plan.worth_answering(triplets, answers, offered["snapshot"]["meta"].get("sim_heard")):
+            answers.skipped.append(offered["snapshot"]["id"])
+            continue
         stored = member.post(f"/api/v1/attempts/{offered['snapshot']['id']}/answer", json=body)
         if stored.status_code != 201:
             raise BenchError(f"the API refused an answer: {stored.text}")
@@ -396,6 +398,29 @@ class Labelling:
     random_share: float
     seed: int | None = None  # of the attempts: the n-th request asks with seed + the attempts asked before
     triplets_per_is_answer: int = 0  # the most triplets one answer that shows a command adds
+    triplets_per_pair_answer: int = 0  # the most one pair answer adds: one per recording
+
+    def enough(self, triplets: int, answers: Answers) -> bool:
+        """Labelling stops once every command has an *is* answer (without one, its success cannot be
+        measured, so a household goes on until each has an example) and one more answer might carry the
+        labels past the target: a pair's in views and mixed mode, an attempt's in attempts mode."""
+        step = self.triplets_per_is_answer if self.mode == "attempts" else self.triplets_per_pair_answer
+        return not answers.commands_missing and triplets + step > self.target
+
+    def answer_attempt(self, triplets: int, answers: Answers) -> bool:
+        """Whether to answer another attempt: not once labelling is `enough`, and, with every command shown,
+        only while an answer that shows one fits under the target (pairs fill what is left)."""
+        if self.enough(triplets, answers):
+            return False
+        return bool(answers.commands_missing) or triplets + self.triplets_per_is_answer <= self.target
+
+    def worth_answering(self, triplets: int, answers: Answers, shows: int | None) -> bool:
+        """Whether a person answers an attempt whose final view shows command `shows` (None: nothing): when
+        the answer fits under the target (showing a command adds up to `triplets_per_is_answer`, nothing up
+        to one per recording), or when the view shows a command with no *is* answer yet; near the target a
+        household skips the other views while it waits for the robot to show those commands."""
+        cost = self.triplets_per_pair_answer if shows is None else self.triplets_per_is_answer
+        return triplets + cost <= self.target or shows in answers.commands_missing
 
     def near_target(self, triplets: int, answers: Answers) -> bool:
         """Whether the labels are at the target less what showing each command still without an *is*
@@ -448,7 +473,7 @@ def label(
         if plan.mode == "views":
             capture(family[0], robot_id, plan.views)
             answer_pairs(
-                family, robot_id, intent_of_clip, lambda t: answers.enough(t, plan.target), answers, show
+                family, robot_id, intent_of_clip, partial(plan.enough, answers=answers), answers, show
             )
             if answers.commands_missing:
                 console.print(f"[yellow]every captured view is answered and no view showed "
@@ -457,14 +482,22 @@ def label(
         asked = 0
         while plan.mode != "views" and asked < plan.attempts:
             triplets = triplet_stats(family[0], robot_id)["triplets"]
-            if answers.enough(triplets, plan.target):
+            if plan.enough(triplets, answers):
                 break
+            if plan.mode == "mixed" and not plan.answer_attempt(triplets, answers):
+                answer_pairs(
+                    family, robot_id, intent_of_clip, partial(plan.enough, answers=answers), answers, show
+                )
+                break  # what is left under the target was filled with pairs
             request = plan.next_request(asked, triplets, answers, names)
             ask_for_attempts(family[0], robot_id, request)
             asked += request["count"]
-            outcomes += answer_attempts(family, robot_id, names, plan.target, answers)
+            outcomes += answer_attempts(family, robot_id, names, plan, answers)
             if plan.mode == "mixed":
-                near = partial(plan.near_target, answers=answers)
+
+                def near(t: int) -> bool:
+                    return plan.near_target(t, answers) or plan.enough(t, answers)
+
                 answer_pairs(family, robot_id, intent_of_clip, near, answers, show)
             show(triplet_stats(family[0], robot_id)["triplets"])
     stats = triplet_stats(family[0], robot_id)
@@ -640,8 +673,11 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
         raise BenchError(f"the robot was refused: {response.text}")
     robot_id = response.json()["id"]
     per_request = args.attempts_per_request or min(len(names), ATTEMPTS_PER_REQUEST)
-    plan = Labelling(args.labelling, args.triplets, args.views, args.attempts, per_request, args.random_share,
-                     args.attempt_seed, triplets_per_is_answer(intent_of_clip))  # fmt: skip
+    plan = Labelling(
+        args.labelling, args.triplets, args.views, args.attempts, per_request, args.random_share,
+        seed=args.attempt_seed, triplets_per_is_answer=triplets_per_is_answer(intent_of_clip),
+        triplets_per_pair_answer=len(intent_of_clip),
+    )  # fmt: skip
     labelling_started = time.perf_counter()
     labelled = label(members, robot_id, intent_of_clip, names, plan)
     labelling_s = time.perf_counter() - labelling_started
@@ -809,6 +845,7 @@ def print_result(result: dict, out: Path) -> None:
         "",
         f"{labelled['answers']} ({labelled['pair_answers']} + {labelled['attempt_answers']})",
     )
+    table.add_row("attempts skipped near the triplet target", "", str(labelled["attempts_skipped"]))
     table.add_row("labels / triplets", "", f"{labelled['labels']} / {labelled['triplets']}")
     table.add_row("share of labels that are 'is'", "", _pct(labelled["is_share"]))
     table.add_row(

@@ -82,7 +82,7 @@ def test_a_households_own_clips_in_a_held_out_room_with_mixed_labelling(
     )
     assert labelled["labels"] == labelled["labels_is"] + labelled["labels_is_not"]
     assert labelled["answers"] == labelled["pair_answers"] + labelled["attempt_answers"]
-    assert 0 <= labelled["is_share"] <= 1 and labelled["triplets"] >= 60
+    assert 0 <= labelled["is_share"] <= 1 and labelled["triplets"] > 0 and labelled["attempts_skipped"] >= 0
     assert 0 <= labelled["commands_with_an_is_answer"] <= 4
     assert [row["command"] for row in result["per_command"]] == WORDS
 
@@ -127,12 +127,41 @@ def test_each_commands_failures_are_told_apart_by_whether_the_robot_ended_at_no_
 
 
 def test_labelling_goes_on_past_the_triplet_target_until_every_command_has_an_is_answer() -> None:
+    plan = bench.Labelling(
+        "mixed", 60, 0, 30, 4, 0.25, triplets_per_is_answer=108, triplets_per_pair_answer=24
+    )
     answers = bench.Answers(commands=4)
     answers.shown.update({0, 1, 3})
-    assert not answers.enough(triplets=1000, target=60), "no example of command 2 yet"
+    assert not plan.enough(1000, answers), "no example of command 2 yet"
+    assert plan.answer_attempt(1000, answers), "so the robot's attempts are still answered"
     answers.shown.add(2)
-    assert answers.enough(1000, 60) and not answers.enough(59, 60)
+    assert plan.enough(1000, answers) and not plan.enough(36, answers)
     assert answers.to_dict()["commands_with_an_is_answer"] == 4
+
+
+def test_labelling_stops_where_one_more_answer_might_carry_the_labels_past_the_target() -> None:
+    mixed = bench.Labelling(
+        "mixed", 1000, 0, 30, 4, 0.25, triplets_per_is_answer=108, triplets_per_pair_answer=24
+    )
+    answers = bench.Answers(commands=4)
+    answers.shown.update({0, 1, 2, 3})
+    assert not mixed.enough(976, answers) and mixed.enough(977, answers), "a pair answer adds at most 24"
+    assert mixed.answer_attempt(892, answers), "a yes (up to 108 triplets) still fits"
+    assert not mixed.answer_attempt(893, answers), "it might not: pairs fill what is left"
+    attempts_only = bench.Labelling("attempts", 1000, 0, 30, 4, 0.25, 7, 108, 24)
+    assert not attempts_only.enough(892, answers) and attempts_only.enough(893, answers), "no pairs to fill"
+
+
+def test_near_the_target_a_household_skips_the_attempts_that_show_no_command_it_still_lacks() -> None:
+    plan = bench.Labelling(
+        "mixed", 1000, 0, 30, 4, 0.25, 7, triplets_per_is_answer=108, triplets_per_pair_answer=24
+    )
+    answers = bench.Answers(commands=4)
+    answers.shown.update({0, 1, 3})
+    assert plan.worth_answering(892, answers, shows=0), "its answer fits under the target"
+    assert not plan.worth_answering(893, answers, shows=0), "command 0 was shown: skipped, it might not fit"
+    assert plan.worth_answering(976, answers, None) and not plan.worth_answering(977, answers, None), "24"
+    assert plan.worth_answering(1000, answers, shows=2), "the command never shown is always answered"
 
 
 def test_attempts_come_in_rounds_and_past_the_target_only_the_commands_never_shown_are_tried() -> None:
