@@ -400,19 +400,23 @@ class Labelling:
     triplets_per_is_answer: int = 0  # the most triplets one answer that shows a command adds
     triplets_per_pair_answer: int = 0  # the most one pair answer adds: one per recording
 
+    def fits(self, triplets: int, added: int) -> bool:
+        """Whether an answer that adds up to `added` triplets keeps the labels within the target."""
+        return triplets + added <= self.target
+
     def enough(self, triplets: int, answers: Answers) -> bool:
         """Labelling stops once every command has an *is* answer (without one, its success cannot be
         measured, so a household goes on until each has an example) and one more answer might carry the
         labels past the target: a pair's in views and mixed mode, an attempt's in attempts mode."""
         step = self.triplets_per_is_answer if self.mode == "attempts" else self.triplets_per_pair_answer
-        return not answers.commands_missing and triplets + step > self.target
+        return not answers.commands_missing and not self.fits(triplets, step)
 
     def answer_attempt(self, triplets: int, answers: Answers) -> bool:
         """Whether to answer another attempt: not once labelling is `enough`, and, with every command shown,
         only while an answer that shows one fits under the target (pairs fill what is left)."""
         if self.enough(triplets, answers):
             return False
-        return bool(answers.commands_missing) or triplets + self.triplets_per_is_answer <= self.target
+        return bool(answers.commands_missing) or self.fits(triplets, self.triplets_per_is_answer)
 
     def worth_answering(self, triplets: int, answers: Answers, shows: int | None) -> bool:
         """Whether a person answers an attempt whose final view shows command `shows` (None: nothing): when
@@ -420,7 +424,7 @@ class Labelling:
         to one per recording), or when the view shows a command with no *is* answer yet; near the target a
         household skips the other views while it waits for the robot to show those commands."""
         cost = self.triplets_per_pair_answer if shows is None else self.triplets_per_is_answer
-        return triplets + cost <= self.target or shows in answers.commands_missing
+        return self.fits(triplets, cost) or shows in answers.commands_missing
 
     def near_target(self, triplets: int, answers: Answers) -> bool:
         """Whether the labels are at the target less what showing each command still without an *is*
@@ -462,6 +466,13 @@ def label(
     """Collects views and answers them as `plan.mode` says, until the labels give `plan.target` triplets and
     every command has an *is* answer (or `plan.attempts` are used up)."""
     answers = Answers(commands=len(names))
+    enough = partial(plan.enough, answers=answers)
+
+    def near(
+        triplets: int,
+    ) -> bool:  # mixed mode: no more random views once the missing commands need the room
+        return plan.near_target(triplets, answers) or enough(triplets)
+
     outcomes: Counter[str] = Counter()
     views_before = len(snapshot_ids(family[0], robot_id))
     with Progress(console=console) as bar:
@@ -472,9 +483,7 @@ def label(
 
         if plan.mode == "views":
             capture(family[0], robot_id, plan.views)
-            answer_pairs(
-                family, robot_id, intent_of_clip, partial(plan.enough, answers=answers), answers, show
-            )
+            answer_pairs(family, robot_id, intent_of_clip, enough, answers, show)
             if answers.commands_missing:
                 console.print(f"[yellow]every captured view is answered and no view showed "
                               f"{', '.join(names[i] for i in answers.commands_missing)}: capture more views "
@@ -482,22 +491,16 @@ def label(
         asked = 0
         while plan.mode != "views" and asked < plan.attempts:
             triplets = triplet_stats(family[0], robot_id)["triplets"]
-            if plan.enough(triplets, answers):
+            if enough(triplets):
                 break
             if plan.mode == "mixed" and not plan.answer_attempt(triplets, answers):
-                answer_pairs(
-                    family, robot_id, intent_of_clip, partial(plan.enough, answers=answers), answers, show
-                )
+                answer_pairs(family, robot_id, intent_of_clip, enough, answers, show)
                 break  # what is left under the target was filled with pairs
             request = plan.next_request(asked, triplets, answers, names)
             ask_for_attempts(family[0], robot_id, request)
             asked += request["count"]
             outcomes += answer_attempts(family, robot_id, names, plan, answers)
             if plan.mode == "mixed":
-
-                def near(t: int) -> bool:
-                    return plan.near_target(t, answers) or plan.enough(t, answers)
-
                 answer_pairs(family, robot_id, intent_of_clip, near, answers, show)
             show(triplet_stats(family[0], robot_id)["triplets"])
     stats = triplet_stats(family[0], robot_id)

@@ -82,7 +82,12 @@ def test_a_households_own_clips_in_a_held_out_room_with_mixed_labelling(
     )
     assert labelled["labels"] == labelled["labels_is"] + labelled["labels_is_not"]
     assert labelled["answers"] == labelled["pair_answers"] + labelled["attempt_answers"]
-    assert 0 <= labelled["is_share"] <= 1 and labelled["triplets"] > 0 and labelled["attempts_skipped"] >= 0
+    assert 0 <= labelled["is_share"] <= 1 and labelled["triplets"] > 0
+    assert labelled["attempts_skipped"] <= labelled["views_collected"] - labelled["attempt_answers"]
+    every_command_shown = labelled["commands_with_an_is_answer"] == 4
+    one_more_pair_might_pass = labelled["triplets"] + household["recordings"] > 60
+    attempts_used_up = labelled["attempt_answers"] + labelled["attempts_skipped"] == 8
+    assert (every_command_shown and one_more_pair_might_pass) or attempts_used_up, "stopped too early"
     assert 0 <= labelled["commands_with_an_is_answer"] <= 4
     assert [row["command"] for row in result["per_command"]] == WORDS
 

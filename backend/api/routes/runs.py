@@ -27,7 +27,12 @@ _POLL_WHILE_SUBSCRIBED_S = 5.0
 @router.get("/presets", response_model=dict[str, schemas.PresetPublic])
 def presets(
     triplets: Annotated[
-        int | None, Query(ge=0, le=100_000_000, description="the household's triplets (default: 4,034)")
+        int | None,
+        Query(
+            ge=0,
+            le=100_000_000,
+            description=f"the household's triplets (default: {runs.MEASURED_TRIPLETS:,})",
+        ),
     ] = None,
 ) -> dict[str, schemas.PresetPublic]:
     """The parameter sets behind "quick", "standard" and "thorough", each with its budget in minutes for a

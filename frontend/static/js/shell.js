@@ -114,10 +114,10 @@ export async function robotPicker(select, onChange = () => {}) {
   }
   const saved = savedRobot(robots);
   if (saved) select.value = saved.id;
-  select.addEventListener("change", () => {
+  select.onchange = () => {  // a picker built again for the same select replaces the old one's handler
     localStorage.setItem(ROBOT_KEY, select.value);
     onChange(robotById(select.value));
-  });
+  };
   const robotById = (id) => robots.find((r) => String(r.id) === String(id)) || null;
   return { robots, current: () => robotById(select.value) };
 }
