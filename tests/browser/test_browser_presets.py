@@ -42,7 +42,7 @@ def test_the_budget_is_for_the_picked_robots_triplets(page, stack: Stack, tmp_pa
     label = page.locator("label[for='preset-thorough']")
     expected = f"about {said_minutes(thorough)} on a 2-core computer with this robot's 1 triplet:"
     page.wait_for_function(
-        "([selector, text]) => document.querySelector(selector).innerText.includes(text)",
+        "([selector, text]) => (document.querySelector(selector)?.innerText ?? '').includes(text)",
         arg=["label[for='preset-thorough']", expected],
     )
     assert "4,034" not in label.inner_text()
