@@ -59,6 +59,7 @@ def trainer_speed(
     env_groups: int,
     device: str,
     policy_view: str = "pixels",
+    torch_threads: int = 1,
 ) -> dict:
     from learning.device import resolve_device
     from learning.rl.frozen_var import LoadedVar
@@ -76,6 +77,7 @@ def trainer_speed(
         num_envs=num_envs,
         env_groups=env_groups,
         policy_view=policy_view,
+        torch_threads=torch_threads,
         total_steps=(updates + 1) * num_envs * 100,
         checkpoint_every=10_000,
     )
@@ -136,6 +138,9 @@ def main() -> None:
         "--policy-view", default="pixels", choices=("pixels", "var"),
         help="what the policy sees: its own CNN over the view, or the VAR's hidden layer (one f_I pass)",
     )  # fmt: skip
+    parser.add_argument(
+        "--torch-threads", type=int, default=1, help="the learner's torch threads (PPOConfig.torch_threads)"
+    )
     parser.add_argument("--results", default="rl_throughput.json", help="file name in bench/results to write")
     args = parser.parse_args()
 
@@ -153,6 +158,7 @@ def main() -> None:
             groups,
             args.device,
             args.policy_view,
+            args.torch_threads,
         )
     raw_after = raw_speed(args.world, args.envs, args.image_size, args.raw_steps)
     raw = (raw_before["steps_per_s"] + raw_after["steps_per_s"]) / 2
@@ -171,6 +177,7 @@ def main() -> None:
         "policy_image_size": args.policy_image_size,
         "num_envs": args.envs,
         "policy_view": args.policy_view,
+        "torch_threads": args.torch_threads,
         "device": args.device,
         "raw_env_steps_per_s": raw,
         "raw_cpu_ms_per_step": raw_cpu,
@@ -185,7 +192,7 @@ def main() -> None:
     }
     table = Table(
         title=f"RL throughput: {args.world}, {args.image_size} px, {args.envs} envs, device {args.device}, "
-        f"policy sees {args.policy_view}"
+        f"policy sees {args.policy_view}, {args.torch_threads} learner thread(s)"
     )
     table.add_column("measure")
     table.add_column("value", justify="right")

@@ -4,6 +4,7 @@ f_S is chosen by the sound front end (`VARConfig.front_end`, learning.front_ends
 (the paper's), or a small trainable head over frozen speech-embedding frames.
 """
 
+import copy
 from dataclasses import asdict, dataclass
 
 import torch
@@ -173,6 +174,19 @@ class VAR(nn.Module):
         self._check_image_shape(images)
         hidden = self.image_encoder.hidden(images)
         return F.normalize(self.image_encoder.head[-1](hidden), dim=1), hidden
+
+    def with_batch_norms_folded(self) -> "VAR":
+        """A frozen copy whose image convolutions absorbed the batch norms after them (their eval statistics):
+        the same f_I up to rounding in fewer passes over the activations, for embedding views while acting.
+        Its weights have other names than a VAR's: never save it."""
+        folded = copy.deepcopy(self).eval().requires_grad_(False)
+        for block in folded.image_encoder.features:
+            conv, norm = block[0], block[1]
+            scale = norm.weight / torch.sqrt(norm.running_var + norm.eps)
+            conv.weight = nn.Parameter(conv.weight * scale.view(-1, 1, 1, 1), requires_grad=False)
+            conv.bias = nn.Parameter(norm.bias - norm.running_mean * scale, requires_grad=False)
+            block[1] = nn.Identity()
+        return folded
 
     def _check_image_shape(self, images: torch.Tensor) -> None:
         size = self.config.image_size

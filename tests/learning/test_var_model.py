@@ -51,6 +51,25 @@ def test_f_s_may_be_wider_than_f_i_and_a_checkpoint_from_before_keeps_f_i_s_widt
         VARConfig(sound_hidden=0)
 
 
+def test_a_copy_with_its_batch_norms_folded_sees_as_the_vars_f_i_does(var: VAR) -> None:
+    """What the trainer embeds views with while acting: no batch norm left, the same f_I and hidden layer up
+    to rounding, frozen; the VAR itself is untouched."""
+    for norm in (m for m in var.modules() if isinstance(m, torch.nn.BatchNorm2d)):  # statistics a VAR learnt
+        norm.running_mean.uniform_(-1, 1)
+        norm.running_var.uniform_(0.5, 2)
+        norm.weight.data.uniform_(0.5, 1.5)
+        norm.bias.data.uniform_(-1, 1)
+    before = {name: weights.clone() for name, weights in var.state_dict().items()}
+    folded = var.with_batch_norms_folded()
+    images = torch.randint(0, 256, (6, 32, 32, 3), dtype=torch.uint8)
+    pairs = zip(var.encode_image_and_hidden(images), folded.encode_image_and_hidden(images), strict=True)
+    for mine, theirs in pairs:
+        torch.testing.assert_close(theirs, mine, atol=1e-5, rtol=1e-5)
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in folded.image_encoder.modules())
+    assert not any(p.requires_grad for p in folded.parameters())
+    assert all(torch.equal(var.state_dict()[name], weights) for name, weights in before.items())
+
+
 def test_images_are_normalised_inside_the_model(var: VAR) -> None:
     """The encoder takes raw uint8 pixels, maps them to [-1, 1] itself, and refuses floats."""
     captured = {}
