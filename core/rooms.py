@@ -20,7 +20,7 @@ from typing import Any
 
 from core.plain import as_lists
 
-TEXTURES = ("checker", "noise", "stripes", "speckle")  # sim.textures draws each
+TEXTURES = ("checker", "noise", "stripes", "speckle", "blotch")  # sim.textures draws each
 
 _Rgb = tuple[float, float, float]
 
@@ -144,10 +144,11 @@ class RoomRanges:
     """The rooms a base model is trained over: every episode draws one room from these ranges (plain data).
 
     They span what a home camera placement plausibly sees: tables and floors of wood, stone, beige, grey
-    and green; objects of most colours; plain, mottled, striped (planks) or speckled (granite) surfaces;
-    light from any side and from high up; a camera a few centimetres and degrees off. They leave out on
-    purpose what the held-out rooms show: orange, cyan and magenta objects, blue and purple floors, checkered
-    surfaces, dim or side light, a camera further off (`held_out_knobs` measures by how much).
+    and green; objects of most colours; plain, mottled, striped (planks), speckled (granite) or blotched (a
+    two-tone print) surfaces; light from any side and from high up; a camera a few centimetres and degrees
+    off. They leave out on purpose what the held-out rooms show: orange, cyan and magenta objects, blue and
+    purple floors, checkered surfaces, dim or side light, a camera further off (`held_out_knobs` measures by
+    how much).
 
     `own_look_share` is the chance that a knob group (object colour, floor colour, light) keeps the world's
     own look, so the training room itself stays in the mix. The camera's jitter is per episode within the
@@ -158,8 +159,8 @@ class RoomRanges:
         ((-30.0, 15.0), (48.0, 160.0), (200.0, 290.0)), (0.5, 1.0), (0.45, 1.0)
     )
     floor_colour: ColourRange = ColourRange(((0.0, 70.0), (80.0, 170.0)), (0.0, 0.5), (0.35, 1.0))
-    object_textures: tuple[str | None, ...] = (None, "noise", "stripes", "speckle")
-    floor_textures: tuple[str | None, ...] = (None, "noise", "stripes", "speckle")
+    object_textures: tuple[str | None, ...] = (None, "noise", "stripes", "speckle", "blotch")
+    floor_textures: tuple[str | None, ...] = (None, "noise", "stripes", "speckle", "blotch")
     camera_jitter_m: float = 0.04
     camera_jitter_deg: float = 3.0
     light_azimuth_deg: _Interval = (-180.0, 180.0)

@@ -148,6 +148,16 @@ class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
     def render(self) -> np.ndarray:
         return self._render()
 
+    def render_as(self, room: DomainShift) -> np.ndarray:
+        """The current view as `room` would show it: the same scene from the same camera, in the room's
+        colours, textures and light (its camera jitter is not drawn). The episode's own room is back after."""
+        own = self.domain
+        self._enter_room(room)
+        try:
+            return self._render()
+        finally:
+            self._enter_room(own)
+
     def close(self) -> None:
         if self.client is not None and self.client.isConnected():
             self.client.disconnect()

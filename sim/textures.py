@@ -1,8 +1,9 @@
 """Procedural grey textures for the domain-shift knobs (PyBullet multiplies them by the shape's colour).
 
 "checker" is the held-out rooms' (tiles); the training ranges draw from the others: "noise" (mottled),
-"stripes" (planks or a woven cloth) and "speckle" (granite or terrazzo), so a base model meets more than one
-kind of surface pattern before it meets a checkered one.
+"stripes" (planks or a woven cloth), "speckle" (granite or terrazzo) and "blotch" (a two-tone patterned cloth
+or camouflage print: large light and dark patches with curved edges, as strong a contrast as the checker's
+but no grid), so a base model meets more than one kind of surface pattern before it meets a checkered one.
 """
 
 import os
@@ -46,6 +47,10 @@ def _texture(kind: str, squares: int) -> np.ndarray:
         dots = rng.random((size, size))
         grey[dots < 0.12] = 90.0
         grey[dots > 0.94] = 255.0
+    elif kind == "blotch":
+        coarse = rng.uniform(0, 1, size=(2 * squares, 2 * squares)).astype(np.float32)  # patches a tile wide
+        smooth = cv2.resize(coarse, (size, size), interpolation=cv2.INTER_CUBIC)
+        grey = np.where(smooth > np.median(smooth), 255, 110).astype(np.float32)
     else:
         coarse = rng.uniform(90, 255, size=(squares, squares)).astype(np.float32)
         fine = rng.uniform(-25, 25, size=(size, size)).astype(np.float32)

@@ -365,6 +365,73 @@ def replace_policy(
     return json.loads((out_root / world / RECORD).read_text())
 
 
+def room_invariant_base(
+    world: str,
+    out_root: Path,
+    eval_episodes_per_intent: int | None = None,
+    progress: bool = True,
+    **settings: Any,
+) -> dict[str, Any]:
+    """A world's base model whose image encoder was taught to see any room of its ranges as the training room
+    (`learning.var.room_invariance`), in its VAR and in its policy's frozen view alike, evaluated again in the
+    rooms of its record with its seed and written to `out_root/<world>/` (the evaluation before is kept under
+    `before_room_invariance`). `settings` are InvarianceConfig's (views, steps...)."""
+    from learning.rl.checkpoints import policy_with_view, read_policy_checkpoint
+    from learning.var.checkpoint import load_var, read_checkpoint, save_var
+    from learning.var.room_invariance import (
+        InvarianceConfig,
+        check_world_renders_rooms,
+        render_pairs,
+        teach_room_invariance,
+    )
+
+    base = find_base(world)
+    check_world_renders_rooms(world)
+    if read_policy_checkpoint(base.policy_path)["policy_config"].get("view_var") is None:
+        raise ValueError(
+            f"the {world} base's policy sees through its own CNN, not its VAR: give it one that sees through "
+            f"the VAR first (`varbot rl train --policy-view var`, then `varbot models replace-policy`)"
+        )
+    config = InvarianceConfig(world=world, **settings)
+    teacher_payload = read_checkpoint(base.var_path)
+    teacher = load_var(base.var_path)
+    pairs = render_pairs(config, teacher.config.image_size, data_dir() / "room_pairs" / world, progress)
+    result = teach_room_invariance(teacher, pairs, config, progress)
+    extra = {
+        key: teacher_payload[key]
+        for key in ("manifest_hash", "sound_set", "world", "refit")
+        if key in teacher_payload
+    }
+    with _staged(out_root / world) as staging:
+        save_var(result.var, staging / "var.pt", **extra, room_invariance=result.report)
+        policy_with_view(base.policy_path, result.var.image_encoder.state_dict(), staging / "policy.pt")
+        for name in ("policy_curves.png", "var_curves.png"):
+            if (base.folder / name).is_file():
+                shutil.copy(base.folder / name, staging / name)
+        evaluation = evaluate_as_recorded(
+            staging, base.record.get("recipe", {}), eval_episodes_per_intent, progress
+        )
+        _write_record(staging, _room_invariant_record(base, result.report, evaluation))
+    return json.loads((out_root / world / RECORD).read_text())
+
+
+def _room_invariant_record(base: BaseModel, report: dict[str, Any], evaluation: dict) -> dict[str, Any]:
+    before = base.record
+    command = (
+        ["varbot", "models", "room-invariance", *sys.argv[3:]] if "room-invariance" in sys.argv else None
+    )
+    return {
+        **{key: value for key, value in before.items() if key != "before_room_invariance"},
+        "evaluation": evaluation,
+        "room_invariance": {
+            **report,
+            "command": " ".join(command) if command else None,
+            "taught_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        },
+        "before_room_invariance": {"evaluation": before.get("evaluation")},
+    }
+
+
 def _check_trained_on_base(base: BaseModel, config: dict[str, Any]) -> None:
     """A policy's reward and goals come from the VAR it trained with: it only works beside that VAR."""
     if config.get("world") != base.world:

@@ -246,6 +246,49 @@ def replace_policy(
     typer.echo(json.dumps({"evaluation": record["evaluation"]}, indent=2))
 
 
+@models_app.command("room-invariance")
+def room_invariance(
+    world: Annotated[
+        str, typer.Option(help="kuka or kinova (worlds that can render a scene in another room)")
+    ],
+    views: Annotated[
+        int, typer.Option(min=20, help="scenes rendered in a drawn room and in the own look")
+    ] = 20_000,
+    steps: Annotated[int, typer.Option(min=1, help="optimiser steps teaching the image encoder")] = 3000,
+    desaturate_share: Annotated[
+        float,
+        typer.Option(min=0.0, max=1.0, help="share of views moved part of the way to grey while taught"),
+    ] = 0.0,
+    seed: Annotated[int, typer.Option()] = 0,
+    eval_episodes_per_intent: Annotated[
+        int | None, typer.Option(min=1, help="default: the base model's own recipe's")
+    ] = None,
+    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+) -> None:
+    """Teach a world's base model to see every room of its training ranges as its own training room: the image
+    encoder of its VAR and of its policy's view learn, on pairs of renders of one scene, to give for any room
+    what they gave for the world's own look; evaluated again in every room of its record."""
+    import json
+
+    from core.paths import data_dir
+    from worker.base_models import BaseModelMissing, room_invariant_base
+
+    try:
+        record = room_invariant_base(
+            world,
+            out or data_dir() / "base_models",
+            eval_episodes_per_intent,
+            views=views,
+            steps=steps,
+            seed=seed,
+            desaturate_share=desaturate_share,
+        )
+    except (ValueError, FileNotFoundError, BaseModelMissing) as refused:
+        raise typer.BadParameter(str(refused)) from None
+    agreement = {key: record["room_invariance"][key] for key in ("agreement_before", "agreement_after")}
+    typer.echo(json.dumps({**agreement, "evaluation": record["evaluation"]}, indent=2))
+
+
 @models_app.command("show")
 def show() -> None:
     """Which base model each simulated world would start from."""
@@ -263,6 +306,8 @@ def show() -> None:
                 front_end += f", refitted {refitted} from {record['before_refit']['front_end']}"
             if "policy_replaced" in record:
                 front_end += f"; policy replaced {record['policy_replaced']['replaced_at']}"
+            if "room_invariance" in record:
+                front_end += f"; taught room invariance {record['room_invariance']['taught_at']}"
             typer.echo(f"{world}: {base.folder} ({made}; trained in rooms: {rooms}; front end: {front_end})")
         except BaseModelMissing as missing:
             typer.echo(f"{world}: {missing}")

@@ -68,7 +68,8 @@ def test_the_simulator_renders_the_same_room_type() -> None:
         ({"object_rgb": [0, 128, 255]}, "settings.domain.object_rgb holds colours in [0, 1]"),
         (
             {"floor_texture": "marble"},
-            "settings.domain.floor_texture is one of checker, noise, stripes, speckle (or null for plain)",
+            "settings.domain.floor_texture is one of checker, noise, stripes, speckle, blotch (or null for "
+            "plain)",
         ),
         ({"camera_jitter_deg": -1}, "settings.domain.camera_jitter_deg is a number of at least 0"),
         ({"light_ambient": True}, "settings.domain.light_ambient is a number of at least 0"),
@@ -87,8 +88,8 @@ def test_the_training_ranges_draw_a_different_room_each_time_and_the_same_room_f
     assert rooms[7] == sample_room(ranges, random.Random(7))
     assert len({room.object_rgb for room in rooms}) > 30, "object colours vary"
     assert len({room.floor_rgb for room in rooms}) > 30, "floor colours vary"
-    assert {room.floor_texture for room in rooms} == {None, "noise", "stripes", "speckle"}
-    assert {room.object_texture for room in rooms} == {None, "noise", "stripes", "speckle"}
+    assert {room.floor_texture for room in rooms} == {None, "noise", "stripes", "speckle", "blotch"}
+    assert {room.object_texture for room in rooms} == {None, "noise", "stripes", "speckle", "blotch"}
     assert None in {room.light_direction for room in rooms}, "some rooms keep the world's own light"
     assert all(outside_by(ranges, room) == dict.fromkeys(HELD_OUT_MARGINS, 0.0) for room in rooms)
 

@@ -198,6 +198,7 @@ KNOBS = {
     "floor_texture": DomainShift(floor_texture="noise"),
     "floor_texture_stripes": DomainShift(floor_texture="stripes"),
     "floor_texture_speckle": DomainShift(floor_texture="speckle"),
+    "floor_texture_blotch": DomainShift(floor_texture="blotch"),
     "floor_texture_checker": DomainShift(floor_texture="checker"),
     "camera_jitter_m": DomainShift(camera_jitter_m=0.03),
     "camera_jitter_deg": DomainShift(camera_jitter_deg=3.0),

@@ -102,4 +102,4 @@ def test_the_worlds_draw_every_texture_a_room_names_and_the_training_ranges_hold
         assert texture_file(kind).stat().st_size > 0, kind
     ranges = RoomRanges()
     assert "checker" not in ranges.floor_textures + ranges.object_textures, "the held-out rooms' pattern"
-    assert {"noise", "stripes", "speckle"} <= set(ranges.floor_textures)
+    assert {"noise", "stripes", "speckle", "blotch"} <= set(ranges.floor_textures)

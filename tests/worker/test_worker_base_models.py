@@ -252,12 +252,8 @@ def _tiny_policy_run(run_dir: Path, var: Path, image_size: int, **settings: obje
     return run_dir
 
 
-def test_a_base_model_takes_a_policy_trained_on_its_var_and_keeps_the_old_policys_figures(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    """`varbot models replace-policy`: the same VAR file, the run's policy and curves, evaluated again in the
-    record's rooms with its seed; the old policy's settings and evaluation stay in the record."""
-    from learning.rl.checkpoints import read_policy_checkpoint
+def _tiny_base(out: Path) -> None:
+    """A Kuka base at 16 px with a pixel policy, evaluated in `unseen_room` only, written to `out/kuka`."""
     from learning.sounds.build import build_corpora
     from worker.base_models import BaseRecipe, build_base
 
@@ -266,7 +262,17 @@ def test_a_base_model_takes_a_policy_trained_on_its_var_and_keeps_the_old_policy
         views=200, image_size=16, var_max_steps=3, policy_steps=24, eval_episodes_per_intent=1,
         eval_rooms=("unseen_room",), ppo_settings=TINY_PPO,
     )  # fmt: skip
-    build_base(recipe, tmp_path / "built", progress=False)
+    build_base(recipe, out, progress=False)
+
+
+def test_a_base_model_takes_a_policy_trained_on_its_var_and_keeps_the_old_policys_figures(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`varbot models replace-policy`: the same VAR file, the run's policy and curves, evaluated again in the
+    record's rooms with its seed; the old policy's settings and evaluation stay in the record."""
+    from learning.rl.checkpoints import read_policy_checkpoint
+
+    _tiny_base(tmp_path / "built")
     old = tmp_path / "built" / "kuka"
     monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "built"))
     run = _tiny_policy_run(tmp_path / "run", old / "var.pt", 16, policy_view="var", goal_match=True)
@@ -329,3 +335,68 @@ def test_a_replacement_that_fails_half_way_leaves_no_half_written_base(tmp_path:
     result = CliRunner().invoke(app, [*replace, "--out", str(tmp_path / "new")], env={"COLUMNS": "300"})
     assert result.exit_code == 2 and "not a varbot policy checkpoint" in result.output
     assert list((tmp_path / "new").iterdir()) == [], "nothing half-written"
+
+
+def test_a_base_model_learns_to_see_any_room_of_its_ranges_as_its_training_room(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`varbot models room-invariance`: the image encoder, taught on pairs of renders of one scene (a drawn
+    room, the world's own look), agrees better with what it gave for the own look; the VAR and the policy's
+    frozen view get the same new weights, while f_S, the sphere's last layer and the rest of the policy stay;
+    the evaluation before is kept."""
+    import torch
+
+    from learning.rl.checkpoints import read_policy_checkpoint
+    from learning.var.checkpoint import load_var
+
+    _tiny_base(tmp_path / "built")
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "built"))
+    run = _tiny_policy_run(tmp_path / "run", tmp_path / "built" / "kuka" / "var.pt", 16, policy_view="var")
+    replace = ["models", "replace-policy", "--world", "kuka", "--run-dir", str(run)]
+    assert CliRunner().invoke(app, [*replace, "--out", str(tmp_path / "viewing")]).exit_code == 0
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "viewing"))
+    teach = ["models", "room-invariance", "--world", "kuka", "--views", "480", "--steps", "80"]
+    result = CliRunner().invoke(app, [*teach, "--out", str(tmp_path / "new")])
+    assert result.exit_code == 0, result.output
+
+    old, new = tmp_path / "viewing" / "kuka", tmp_path / "new" / "kuka"
+    record, before = (json.loads((folder / "base.json").read_text()) for folder in (new, old))
+    taught = record["room_invariance"]
+    assert (
+        taught["agreement_after"]["other_rooms_hidden_error"]
+        < taught["agreement_before"]["other_rooms_hidden_error"]
+    )
+    assert record["before_room_invariance"]["evaluation"] == before["evaluation"]
+    assert set(record["evaluation"]) == {"unseen_room"}
+    teacher, student = load_var(old / "var.pt"), load_var(new / "var.pt")
+    policy = read_policy_checkpoint(new / "policy.pt")["policy"]
+    old_policy = read_policy_checkpoint(old / "policy.pt")["policy"]
+    for name, weights in student.image_encoder.state_dict().items():
+        assert torch.equal(policy[f"var_view.encoder.{name}"], weights), "the policy sees through the student"
+    assert not torch.equal(
+        student.image_encoder.features[0][0].weight, teacher.image_encoder.features[0][0].weight
+    )
+    assert torch.equal(student.image_encoder.head[-1].weight, teacher.image_encoder.head[-1].weight)
+    for name, weights in teacher.sound_encoder.state_dict().items():
+        assert torch.equal(student.sound_encoder.state_dict()[name], weights), name
+    for name, weights in old_policy.items():
+        if not name.startswith("var_view."):
+            assert torch.equal(policy[name], weights), name
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "new"))
+    shown = CliRunner().invoke(app, ["models", "show"]).output
+    assert f"taught room invariance {taught['taught_at']}" in shown
+
+
+@pytest.mark.parametrize(
+    ("world", "reason"),
+    [("turtlebot", "cannot render a scene in another room"), ("kinova", "sees through its own CNN")],
+)
+def test_room_invariance_is_refused_where_it_cannot_work_before_anything_is_rendered(
+    world: str, reason: str, tmp_path: Path
+) -> None:
+    """The TurtleBot's env cannot render one scene in two rooms; the shipped Kinova policy has its own CNN,
+    which the VAR's new weights would not reach."""
+    teach = ["models", "room-invariance", "--world", world, "--out", str(tmp_path / "new")]
+    result = CliRunner().invoke(app, teach, env={"COLUMNS": "300"})
+    assert result.exit_code == 2 and reason in result.output
+    assert not (tmp_path / "new").exists()
