@@ -80,6 +80,21 @@ def compact_policy_checkpoint(source: Path, out: Path) -> Path:
     return out
 
 
+def policy_with_view(source: Path, view_state: dict[str, torch.Tensor], out: Path) -> Path:
+    """A compact copy of the policy at `source` whose frozen VAR view (`var_view.encoder`) holds `view_state`,
+    an image encoder's weights of the same shape; everything else is the policy's own."""
+    payload = read_policy_checkpoint(source)
+    prefix = "var_view.encoder."
+    own = {key[len(prefix) :] for key in payload["policy"] if key.startswith(prefix)}
+    if own != set(view_state):
+        raise ValueError(
+            f"{source} holds no policy that sees through a VAR of this shape (policy_view='var')"
+        )
+    weights = {**payload["policy"], **{prefix + key: value for key, value in view_state.items()}}
+    torch.save({**{key: payload[key] for key in ACTING_KEYS if key in payload}, "policy": weights}, out)
+    return out
+
+
 def load_policy(path: Path) -> tuple[Policy, dict[str, Any]]:
     """The policy stored in a checkpoint (eval mode) and the checkpoint's contents."""
     payload = read_policy_checkpoint(path)

@@ -114,8 +114,13 @@ def render_pairs(config: InvarianceConfig, image_size: int, folder: Path, progre
 
 
 def _pair_recipe(config: InvarianceConfig) -> dict[str, Any]:
+    """What the pairs are made of, as their meta.json keeps it (the ranges as JSON gives them back)."""
+    from core.plain import as_lists
+    from core.rooms import RoomRanges
+
     fields = ("world", "views", "views_per_scene", "training_room_share", "seed")
-    return {name: getattr(config, name) for name in fields}
+    ranges = as_lists(dataclasses.asdict(RoomRanges()))
+    return {**{name: getattr(config, name) for name in fields}, "room_ranges": ranges}
 
 
 def _render_chunk(args: tuple[str, InvarianceConfig, int, int, int]) -> int:
@@ -175,6 +180,7 @@ def teach_room_invariance(
     report = {
         "settings": dataclasses.asdict(config),
         "pairs": len(inputs),
+        "pairs_recipe": json.loads((folder / "meta.json").read_text())["recipe"],
         "held_out_pairs": len(held_out),
         "target_spread": scale,
         "teach_s": round(seconds, 1),

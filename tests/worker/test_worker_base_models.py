@@ -367,6 +367,8 @@ def test_a_base_model_learns_to_see_any_room_of_its_ranges_as_its_training_room(
         < taught["agreement_before"]["other_rooms_hidden_error"]
     )
     assert record["before_room_invariance"]["evaluation"] == before["evaluation"]
+    pair_ranges = taught["pairs_recipe"]["room_ranges"]
+    assert "checker" not in pair_ranges["floor_textures"] + pair_ranges["object_textures"], "held out"
     assert set(record["evaluation"]) == {"unseen_room"}
     teacher, student = load_var(old / "var.pt"), load_var(new / "var.pt")
     policy = read_policy_checkpoint(new / "policy.pt")["policy"]
