@@ -310,16 +310,14 @@ def _refit_record(
 ) -> dict[str, Any]:
     before = base.record
     folder = base.folder.relative_to(REPO_ROOT) if base.folder.is_relative_to(REPO_ROOT) else base.folder
-    command = (
-        ["varbot", "models", "refit-front-end", *sys.argv[3:]] if "refit-front-end" in sys.argv else None
-    )
+    command = _command_line("refit-front-end")
     return {
         **{key: value for key, value in before.items() if key not in ("evaluation", "before_refit")},
         "front_end": front_end,
         "evaluation": evaluation,
         "refit": {
             **report,
-            "command": " ".join(command) if command else None,
+            "command": command,
             "refitted_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         },
         "before_refit": {
@@ -417,19 +415,22 @@ def room_invariant_base(
 
 def _room_invariant_record(base: BaseModel, report: dict[str, Any], evaluation: dict) -> dict[str, Any]:
     before = base.record
-    command = (
-        ["varbot", "models", "room-invariance", *sys.argv[3:]] if "room-invariance" in sys.argv else None
-    )
+    command = _command_line("room-invariance")
     return {
         **{key: value for key, value in before.items() if key != "before_room_invariance"},
         "evaluation": evaluation,
         "room_invariance": {
             **report,
-            "command": " ".join(command) if command else None,
+            "command": command,
             "taught_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         },
         "before_room_invariance": {"evaluation": before.get("evaluation")},
     }
+
+
+def _command_line(subcommand: str) -> str | None:
+    """`varbot models <subcommand> …` as it was typed, for a record; None when called from Python."""
+    return " ".join(["varbot", "models", subcommand, *sys.argv[3:]]) if subcommand in sys.argv else None
 
 
 def _check_trained_on_base(base: BaseModel, config: dict[str, Any]) -> None:
@@ -457,7 +458,7 @@ def _replaced_policy_record(
 ) -> dict[str, Any]:
     before = base.record
     policy_keys = ("policy_config", "policy_env_steps", "policy_recent_success_in_training", "evaluation")
-    command = ["varbot", "models", "replace-policy", *sys.argv[3:]] if "replace-policy" in sys.argv else None
+    command = _command_line("replace-policy")
     room = world_room(config["room"])  # a run names its room only: its ranges are those of the code it ran
     return {
         **{key: value for key, value in before.items() if key != "before_policy_replaced"},
@@ -470,7 +471,7 @@ def _replaced_policy_record(
             "trained_with": {key: config.get(key) for key in RUN_ONLY_KEYS},
             "policy_room_ranges": asdict(room) if isinstance(room, RoomRanges) else None,
             "run_time_s": summary.get("time_s"),
-            "command": " ".join(command) if command else None,
+            "command": command,
             "replaced_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         },
         "before_policy_replaced": {key: before.get(key) for key in policy_keys},

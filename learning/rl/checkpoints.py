@@ -75,9 +75,12 @@ ACTING_KEYS = ("kind", "format_version", "config", "policy_config", "policy", "l
 def compact_policy_checkpoint(source: Path, out: Path) -> Path:
     """The policy without optimiser, RNG and episode state, in the current format: what a model version or
     a base model needs to act and to improve."""
-    payload = read_policy_checkpoint(source)
-    torch.save({key: payload[key] for key in ACTING_KEYS if key in payload}, out)
+    torch.save(_acting_part(read_policy_checkpoint(source)), out)
     return out
+
+
+def _acting_part(payload: dict[str, Any]) -> dict[str, Any]:
+    return {key: payload[key] for key in ACTING_KEYS if key in payload}
 
 
 def policy_with_view(source: Path, view_state: dict[str, torch.Tensor], out: Path) -> Path:
@@ -91,7 +94,7 @@ def policy_with_view(source: Path, view_state: dict[str, torch.Tensor], out: Pat
             f"{source} holds no policy that sees through a VAR of this shape (policy_view='var')"
         )
     weights = {**payload["policy"], **{prefix + key: value for key, value in view_state.items()}}
-    torch.save({**{key: payload[key] for key in ACTING_KEYS if key in payload}, "policy": weights}, out)
+    torch.save({**_acting_part(payload), "policy": weights}, out)
     return out
 
 

@@ -37,9 +37,7 @@ class InvarianceConfig:
     world: str = "kuka"
     views: int = 20_000  # scenes rendered twice: in a drawn room and in the world's own look
     views_per_scene: int = 8  # gripper moves between new block rows and rooms
-    training_room_share: float = (
-        0.25  # pairs whose input is the world's own look (keeps what it sees at home)
-    )
+    training_room_share: float = 0.25  # pairs whose input is the own look: what it sees at home stays
     steps: int = 3000
     batch_size: int = 128
     lr: float = 3e-4
@@ -70,12 +68,11 @@ class InvarianceResult:
 def check_world_renders_rooms(world: str) -> None:
     """Refuse a world whose env cannot render one scene in another room (`render_as`): the TurtleBot's."""
     import gymnasium as gym
+    from gymnasium.envs.registration import load_env_creator
 
     from sim import world_id
 
-    entry_point = gym.spec(world_id(world)).entry_point
-    module, _, name = str(entry_point).partition(":")
-    env_class = getattr(__import__(module, fromlist=[name]), name) if name else entry_point
+    env_class = load_env_creator(gym.spec(world_id(world)).entry_point)
     if not hasattr(env_class, "render_as"):
         raise ValueError(
             f"the {world} world cannot render a scene in another room (its env has no render_as): room "

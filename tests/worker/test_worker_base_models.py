@@ -399,7 +399,10 @@ def test_room_invariance_is_refused_where_it_cannot_work_before_anything_is_rend
 ) -> None:
     """The TurtleBot's env cannot render one scene in two rooms; the shipped Kinova policy has its own CNN,
     which the VAR's new weights would not reach."""
+    from core.paths import data_dir
+
     teach = ["models", "room-invariance", "--world", world, "--out", str(tmp_path / "new")]
     result = CliRunner().invoke(app, teach, env={"COLUMNS": "300"})
     assert result.exit_code == 2 and reason in result.output
     assert not (tmp_path / "new").exists()
+    assert not (data_dir() / "room_pairs" / world).exists(), "refused before rendering"
