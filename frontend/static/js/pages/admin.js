@@ -4,6 +4,7 @@ import { element, pageFailed, pageReady, robotPicker, say, startPage, when } fro
 
 const $ = (id) => document.getElementById(id);
 let picker;
+let presetsDrawn = 0;
 
 function formatMinutes(minutes) {
   const whole = Math.max(1, Math.round(minutes));
@@ -17,8 +18,11 @@ async function householdTriplets(robot) {
 }
 
 async function drawPresets() {
+  // A robot picked while an earlier draw is still waiting must not have that draw's presets shown over its own.
+  const draw = ++presetsDrawn;
   const triplets = await householdTriplets(picker.current());
   const presets = await api(triplets === null ? "/runs/presets" : `/runs/presets?triplets=${triplets}`);
+  if (draw !== presetsDrawn) return;
   const box = $("presets");
   const chosen = new FormData($("start")).get("preset") || "quick";
   box.innerHTML = "";
