@@ -15,6 +15,7 @@ QUEUE_ROBOT = "robot"
 QUEUE_TRAINING = "training"
 TASK_CAPTURE_SNAPSHOTS = "varbot.capture_snapshots"
 TASK_TRY_COMMANDS = "varbot.try_commands"  # the robot's attempts at the household's commands
+TASK_ADAPT_TO_ROOM = "varbot.adapt_to_room"  # a robot's model adapted to its room's views
 TASK_COACH = "varbot.coach"  # a coaching-by-voice session (backend/services/coaching.py)
 COACHING_STAGE = "coaching"  # the `stage` of a coaching session's rollouts on the rollout channel
 RUN_TASKS: dict[RunKind, str] = {
@@ -48,6 +49,12 @@ def attempts_status_key(task_id: str) -> str:
     failed, "message", "created" (attempts stored), "random_views", "robot_id"}; the API writes it queued, the
     worker the rest."""
     return f"varbot:attempts:{task_id}"
+
+
+def adaptation_status_key(task_id: str) -> str:
+    """Redis key of a `TASK_ADAPT_TO_ROOM` task's state: JSON {"state": queued | running | done | refused |
+    failed, "message", "version_id" (the adapted version, when done), "robot_id"}."""
+    return f"varbot:adaptations:{task_id}"
 
 
 @lru_cache

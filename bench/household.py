@@ -373,18 +373,24 @@ def attempt_outcome(answer: dict[str, str]) -> str:
 
 
 def ask_for_attempts(admin: httpx.Client, robot_id: int, body: dict) -> dict:
-    response = admin.post(f"/api/v1/robots/{robot_id}/attempts", json=body)
+    robot = f"/api/v1/robots/{robot_id}"
+    return robot_task(admin, f"{robot}/attempts", body, f"{robot}/attempts", "the robot's attempts")
+
+
+def robot_task(admin: httpx.Client, ask: str, body: dict, status_path: str, what: str) -> dict:
+    """POST `ask`, then follow GET `status_path`/{task_id} until the task ends; its end, if done."""
+    response = admin.post(ask, json=body)
     if response.status_code != 202:
-        raise BenchError(f"attempts were refused: {response.text}")
+        raise BenchError(f"{what}: refused: {response.text}")
     task_id = response.json()["task_id"]
 
     def ended() -> dict | None:
-        status = admin.get(f"/api/v1/robots/{robot_id}/attempts/{task_id}").json()
+        status = admin.get(f"{status_path}/{task_id}").json()
         return status if status["state"] in ("done", "refused", "failed") else None
 
-    status = wait_until(ended, 3600, "the robot's attempts", interval=1.0)
+    status = wait_until(ended, 3600, what, interval=1.0)
     if status["state"] != "done":
-        raise BenchError(f"the robot's attempts {status['state']}: {status['message']}")
+        raise BenchError(f"{what} {status['state']}: {status['message']}")
     return status
 
 
@@ -567,16 +573,23 @@ def move_robot(admin: httpx.Client, robot_id: int, room: str) -> None:
 
 
 def score_in_room(
-    args: argparse.Namespace, stack: Stack, admin: httpx.Client, robot_id: int, room: str
+    args: argparse.Namespace, stack: Stack, admin: httpx.Client, robot_id: int, room: str, adapt: bool = True
 ) -> dict:
     """The robot's newest model scored in `room` by an evaluate run of the product (the same episode list as
     the fine-tune's evaluation: same preset and seed), the robot moved there for the run and back after.
-    The newest model is the waiting candidate if the gate kept one, else the active version."""
+    The newest model is the waiting candidate if the gate kept one, else the active version. With
+    `--adapt-views` (and `adapt`) it is adapted to views of `room` first, as a household's would be after a
+    move, and the versions active before are given back after."""
     move_robot(admin, robot_id, room)
+    rollbacks = 0
     try:
+        if args.adapt_views and adapt:
+            rollbacks = adapt_newest_to_room(admin, robot_id, args.adapt_views)
         run = run_and_wait(admin, robot_id, args.preset, run_params(args), args.run_timeout_s, stack.logs,
                            kind="evaluate")  # fmt: skip
     finally:
+        for _ in range(rollbacks):
+            admin.post(f"/api/v1/robots/{robot_id}/models:rollback").raise_for_status()
         move_robot(admin, robot_id, args.room)
     if run["status"] != "succeeded":
         raise BenchError(f"the evaluate run in {room} {run['status']}: {run['error']}")
@@ -589,6 +602,40 @@ def score_in_room(
         "sim_final_views": score.get("sim_final_views"), "sim_missed_by_m": score.get("sim_missed_by_m"),
         "note": score.get("sim_note"),
     }  # fmt: skip
+
+
+def adapt_to_room(admin: httpx.Client, robot_id: int, views: int) -> dict:
+    """Capture `views` random views of the robot's room and adapt its active model to them; the task's end."""
+    capture(admin, robot_id, views)
+    robot = f"/api/v1/robots/{robot_id}"
+    return robot_task(
+        admin, f"{robot}/models:adapt-to-room", {"views": views}, f"{robot}/adaptations", "the adaptation"
+    )
+
+
+def adapt_newest_to_room(admin: httpx.Client, robot_id: int, views: int) -> int:
+    """Adapt the robot's newest model (a waiting candidate is made active first) to `views` views of the room
+    it is in; how many rollbacks give back the versions active before."""
+    versions = admin.get(f"/api/v1/robots/{robot_id}/models").json()
+    newest = max(versions, key=lambda version: version["id"])
+    rollbacks = 1
+    if newest["status"] != "active":
+        admin.post(f"/api/v1/models/{newest['id']}:activate").raise_for_status()
+        rollbacks += 1
+    adapt_to_room(admin, robot_id, views)
+    return rollbacks
+
+
+def score_unadapted(
+    args: argparse.Namespace, stack: Stack, admin: httpx.Client, robot_id: int, adapted_id: int
+) -> dict:
+    """The model the adaptation started from, scored in the robot's room (once every command has an *is*
+    answer, success can be measured); the adapted version is made active again after."""
+    admin.post(f"/api/v1/robots/{robot_id}/models:rollback").raise_for_status()
+    try:
+        return score_in_room(args, stack, admin, robot_id, args.room, adapt=False)
+    finally:
+        admin.post(f"/api/v1/models/{adapted_id}:activate").raise_for_status()
 
 
 def per_command(names: list[str], before: dict, after: dict) -> list[dict]:
@@ -681,11 +728,16 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
         seed=args.attempt_seed, triplets_per_is_answer=triplets_per_is_answer(intent_of_clip),
         triplets_per_pair_answer=len(intent_of_clip),
     )  # fmt: skip
+    adaptation = None
+    if args.adapt_views:
+        adaptation = {"views": args.adapt_views, **adapt_to_room(members[0], robot_id, args.adapt_views)}
     labelling_started = time.perf_counter()
     labelled = label(members, robot_id, intent_of_clip, names, plan)
     labelling_s = time.perf_counter() - labelling_started
     admin = members[0]
     checks = {room: {"before": score_in_room(args, stack, admin, robot_id, room)} for room in args.check_room}
+    if adaptation is not None:
+        adaptation["unadapted"] = score_unadapted(args, stack, admin, robot_id, adaptation["version_id"])
     run = run_and_wait(admin, robot_id, args.preset, run_params(args), args.run_timeout_s, stack.logs)
     for room, check in checks.items():
         check["after"] = score_in_room(args, stack, admin, robot_id, room)
@@ -707,6 +759,7 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
         "triplet_accuracy_after": after.get("triplet_accuracy"),
         "held_out_triplets": after.get("held_out_triplets"),
         "other_rooms": checks,
+        "room_adaptation": adaptation,
     }  # fmt: skip
 
 
@@ -750,6 +803,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="also score the model before and after the fine-tune in this room (repeat)",
     )  # fmt: skip
     parser.add_argument("--views", type=int, default=600, help="views mode: random views captured")
+    parser.add_argument(
+        "--adapt-views", type=int, default=0,
+        help="first capture this many random views of the room and adapt the base model to them "
+        "(POST …/models:adapt-to-room; the unadapted base is scored first); a --check-room is adapted to too",
+    )  # fmt: skip
     parser.add_argument("--attempts", type=int, default=200, help="attempts / mixed: the most attempts asked")
     parser.add_argument(
         "--attempts-per-request", type=int, default=None,

@@ -15,6 +15,8 @@ training room and in randomised rooms, interleaved (so both meet the same load),
         [--episodes-per-intent 50] [--rooms training,unseen_room,lamplit_room]
         [--rooms 'lamplit_room,lamplit_room[camera_jitter_m=0,camera_jitter_deg=0]']  # which knob costs most
         [--rooms 'unseen_room[floor_texture=none],unseen_room[object_rgb=none]']  # none: the world's own look
+    nice -n 10 .venv/bin/python bench/rooms.py --tag room-adapted --adapt-views 400 [--adapt-share 0.5]
+        # each room's cells from the base adapted to 400 random views of that room (POST …:adapt-to-room)
     nice -n 10 .venv/bin/python bench/rooms.py --env-speed [--rounds 4]
 """
 
@@ -22,6 +24,7 @@ import argparse
 import json
 import re
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -35,6 +38,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from core.rooms import HELD_OUT_ROOMS, TRAINING_ROOM, RoomRanges
+from worker.base_models import BaseModel
 
 RESULTS = Path(__file__).resolve().parent / "results" / "rooms.json"
 SPEED_RESULTS = RESULTS.with_name("rooms_env_speed.json")
@@ -56,6 +60,14 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--splits", default=",".join(SPLITS))
     parser.add_argument("--episodes-per-intent", type=int, default=50)
     parser.add_argument("--seed", type=int, default=12345)
+    parser.add_argument(
+        "--adapt-views", type=int, default=0,
+        help="adapt the base to each room first, from this many random views of it (worker.room_adaptation)",
+    )  # fmt: skip
+    parser.add_argument(
+        "--adapt-share", type=float, default=0.5, help="--adapt-views: how far the statistics move"
+    )
+    parser.add_argument("--adapt-seed", type=int, default=7, help="--adapt-views: the views' seed")
     parser.add_argument("--out", type=Path, default=RESULTS)
     return parser.parse_args(argv)
 
@@ -64,7 +76,7 @@ def evaluate_base(args: argparse.Namespace, save: Callable[[dict], None]) -> dic
     """Success of the base model in every room × tier cell, with what it is; `save` gets the entry after every
     cell (an interrupted run keeps the cells it finished)."""
     from learning.var.checkpoint import front_end_of
-    from worker.base_models import BaseModel, evaluate_in_rooms, find_base
+    from worker.base_models import evaluate_in_rooms, find_base
 
     base = BaseModel(args.world, args.base) if args.base else find_base(args.world)
     entry = {
@@ -78,6 +90,11 @@ def evaluate_base(args: argparse.Namespace, save: Callable[[dict], None]) -> dic
         "sounds": base.record.get("sounds"),
         "episodes_per_intent": args.episodes_per_intent,
         "seed": args.seed,
+        "room_adaptation": (
+            {"views": args.adapt_views, "share": args.adapt_share, "views_seed": args.adapt_seed}
+            if args.adapt_views
+            else None
+        ),
         "cells": {},
     }
 
@@ -86,11 +103,40 @@ def evaluate_base(args: argparse.Namespace, save: Callable[[dict], None]) -> dic
         print(f"{room} / {split}: {cell['success_rate']:.1%} ({cell['episodes']} episodes)", flush=True)
         save(entry)
 
-    evaluate_in_rooms(
-        base.var_path, base.policy_path, room_names(args.rooms), args.splits.split(","),
-        episodes_per_intent=args.episodes_per_intent, seed=args.seed, on_cell=on_cell,
-    )  # fmt: skip
+    for room in room_names(args.rooms):
+        var_path, policy_path = base.var_path, base.policy_path
+        with tempfile.TemporaryDirectory() as folder:
+            if args.adapt_views:
+                var_path, policy_path = adapted_to(room, base, args, Path(folder))
+            evaluate_in_rooms(
+                var_path, policy_path, [room], args.splits.split(","),
+                episodes_per_intent=args.episodes_per_intent, seed=args.seed, on_cell=on_cell,
+            )  # fmt: skip
     return entry
+
+
+def adapted_to(room: str, base: BaseModel, args: argparse.Namespace, folder: Path) -> tuple[Path, Path]:
+    """The base's VAR and policy adapted to `args.adapt_views` random views of `room`, as a household's robot
+    is by POST …/models:adapt-to-room after capturing them (worker.room_adaptation)."""
+    import numpy as np
+
+    from core.rooms import world_room
+    from sim.explore import random_views
+    from worker.room_adaptation import adapted_files
+
+    views = random_views(
+        args.world,
+        args.adapt_views,
+        seed=args.adapt_seed,
+        image_size=base.image_size,
+        domain=world_room(room),
+    )
+    images = np.stack([image for image, _, _ in views])
+    var_path, policy_path, _ = adapted_files(
+        base.var_path, base.policy_path, images, args.adapt_share, folder
+    )
+    assert policy_path is not None  # a base model always has a policy
+    return var_path, policy_path
 
 
 def room_names(text: str) -> list[str]:

@@ -294,6 +294,9 @@ def _azimuth_elevation(direction: tuple[float, float, float] | None) -> tuple[fl
 TRAINING_ROOM = "training"
 RANDOMISED_ROOMS = "randomised"
 ROOM_NAMES = (TRAINING_ROOM, RANDOMISED_ROOMS, *ROOM_PRESETS)
+# Adapting a model to a room (learning.var.room_adaptation) needs at least this many of its camera views.
+MIN_ROOM_VIEWS = 64
+ROOM_VIEWS = 400  # how many of a robot's newest views it adapts to by default
 
 
 def world_room(name: str | Mapping[str, Any]) -> "DomainShift | RoomRanges | None":

@@ -134,6 +134,20 @@ class Household:
             )
             assert response.status_code == 201, response.text
 
+    def robot_task(self, robot_id: int, ask: str, status: str, body: dict, what: str) -> dict:
+        """POST …/robots/{id}/`ask` (202), then follow GET …/robots/{id}/`status`/{task_id} until the task
+        ends: what the POST answered, with the task's end as "status"."""
+        robot = f"/api/v1/robots/{robot_id}"
+        response = self.client.post(f"{robot}/{ask}", json=body)
+        assert response.status_code == 202, response.text
+        queued = response.json()
+
+        def ended() -> dict | None:
+            found = self.client.get(f"{robot}/{status}/{queued['task_id']}").json()
+            return found if found["state"] in ("done", "refused", "failed") else None
+
+        return {**queued, "status": wait_until(ended, 180, what, interval=0.5)}
+
     def start_run(self, robot_id: int, kind: str = "finetune", **params: object) -> dict:
         body = {"robot_id": robot_id, "kind": kind, "preset": "quick", "params": params}
         response = self.client.post("/api/v1/runs", json=body)

@@ -90,7 +90,9 @@ def load_household(
     }
     snapshot_row = {sid: row for row, sid in enumerate(used_snapshots)}
     clip_row = {clip.id: row for row, clip in enumerate(clips)}
-    images = np.stack([_image(blobs.get(snapshots[sid].image_key), image_size) for sid in used_snapshots])
+    images = np.stack(
+        [decoded_image(blobs.get(snapshots[sid].image_key), image_size) for sid in used_snapshots]
+    )
     sim_heard = np.array([_sim_heard(snapshots[sid]) for sid in used_snapshots], dtype=np.int64)
     features = np.stack(
         [features_from_bytes(blobs.get(clip.wav_key), feature_kind, front_end) for clip in clips]
@@ -116,7 +118,7 @@ def load_household(
     )
 
 
-def _image(png: bytes, size: int) -> np.ndarray:
+def decoded_image(png: bytes, size: int) -> np.ndarray:
     with Image.open(io.BytesIO(png)) as image:
         image = image.convert("RGB")
         if image.size != (size, size):

@@ -92,7 +92,7 @@ def prepare_context(
         robot = session.get_one(models.Robot, run.robot_id)
         world = world_of_kind(robot.kind)
         if "parent_id" not in state.data:
-            state.data["parent_id"] = _active_or_base(session, blobs, robot, world).id
+            state.data["parent_id"] = active_or_base(session, blobs, robot, world).id
             state.save()
         parent = session.get_one(models.ModelVersion, state.data["parent_id"])
         parent_var = materialise(blobs, parent.var_key, folder / "parent" / "var.pt")
@@ -159,7 +159,7 @@ def materialise_optional(blobs: BlobStore, key: str | None, path: Path) -> Path 
     return None if key is None else materialise(blobs, key, path)
 
 
-def _active_or_base(
+def active_or_base(
     session: Session, blobs: BlobStore, robot: models.Robot, world: str
 ) -> models.ModelVersion:
     """The robot's active version; a robot that never had one gets the shipped base model, made active."""

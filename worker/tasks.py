@@ -81,6 +81,32 @@ def capture_snapshots(self: Task, robot_id: int, household_id: int, count: int) 
     return {k: v for k, v in result.items() if k != "snapshot_ids"}
 
 
+@app.task(name=broker.TASK_ADAPT_TO_ROOM, **_ROBOT)
+def adapt_to_room(self: Task, robot_id: int, household_id: int, views: int, share: float) -> dict:
+    """The robot's model adapted to its newest views (`worker.room_adaptation`), made active; what cannot
+    be adapted (too few views, no VAR) ends the task as refused, saying what to do."""
+    from backend.services.attempts import write_status
+    from worker.room_adaptation import AdaptationRefused, adapt_robot_to_room
+
+    def report(state: str, message: str, version_id: int | None = None) -> None:
+        status = {"state": state, "message": message, "version_id": version_id, "robot_id": robot_id}
+        write_status(self.request.id, status, key=broker.adaptation_status_key)
+
+    report("running", "adapting the model to the room's views")
+    try:
+        result = adapt_robot_to_room(robot_id, household_id, views, share, task_id=self.request.id)
+    except AdaptationRefused as refusal:
+        report("refused", str(refusal))
+        return {"robot_id": robot_id, "refused": str(refusal)}
+    except Exception as error:
+        report("failed", f"{type(error).__name__}: {error}; the active model was not changed")
+        raise
+    report("done", f"version {result['version_id']} is active: adapted to {result['views']} views",
+           result["version_id"])  # fmt: skip
+    logger.info("robot %s adapted to its room: version %s", robot_id, result["version_id"])
+    return {k: v for k, v in result.items() if k != "mean_shift"}
+
+
 @app.task(name=broker.TASK_TRY_COMMANDS, **_ROBOT)
 def try_commands(
     self: Task,

@@ -18,6 +18,7 @@ import torch
 
 from learning.var.checkpoint import load_var, read_checkpoint, save_var
 from learning.var.model import VAR
+from learning.var.room_adaptation import CHECKPOINT_KEY as ROOM_ADAPTATION
 from worker.household import SILENCE_ROW, HouseholdData
 
 
@@ -57,6 +58,15 @@ def triplet_accuracy(var: VAR, data: HouseholdData, triplets: np.ndarray) -> flo
     return float(closer.float().mean())
 
 
+def keep_room_statistics(var: VAR) -> None:
+    """A VAR adapted to the household's room (`worker.room_adaptation`) trains with its image encoder's batch
+    norms in eval mode: it learns under the room's statistics and leaves them as they are, where batch
+    statistics would pull them toward a mix of the room and the replayed training room."""
+    for module in var.image_encoder.modules():
+        if isinstance(module, torch.nn.BatchNorm2d):
+            module.eval()
+
+
 def finetune_var(
     data: HouseholdData,
     init_checkpoint: Path,
@@ -93,6 +103,8 @@ def finetune_var(
     started = time.perf_counter()
     while state["epoch"] < epochs:
         var.train()
+        if ROOM_ADAPTATION in init_payload:
+            keep_room_statistics(var)
         order = np.random.default_rng([seed, 21, state["epoch"]]).permutation(len(train))
         losses = []
         for start in range(0, len(train), batch_size):
@@ -155,7 +167,8 @@ def _save(
     optimizer: torch.optim.Optimizer,
     generator: torch.Generator,
 ) -> None:
-    keep = {k: init_payload[k] for k in ("manifest_hash", "sound_set", "world") if k in init_payload}
+    kept = ("manifest_hash", "sound_set", "world", ROOM_ADAPTATION)
+    keep = {k: init_payload[k] for k in kept if k in init_payload}
     save_var(
         var,
         path,

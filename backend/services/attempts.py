@@ -12,6 +12,7 @@ import contextlib
 import json
 import math
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
@@ -280,18 +281,23 @@ def ask_for_attempts(
         raise Unavailable(f"{exc}; nothing was attempted") from exc
 
 
-def write_status(task_id: str, status: dict[str, Any]) -> None:
-    """The attempt task's state (queued, running, done, refused, failed) with a message saying why; the
-    worker updates it. Raises Unavailable when Redis cannot be reached."""
+def write_status(
+    task_id: str, status: dict[str, Any], key: Callable[[str], str] = broker.attempts_status_key
+) -> None:
+    """A robot task's state (queued, running, done, refused, failed) with a message saying why, under
+    `key(task_id)` (an attempts task's by default); the worker updates it. Raises Unavailable when Redis
+    cannot be reached."""
     try:
-        broker.redis_client().set(broker.attempts_status_key(task_id), json.dumps(status), ex=_STATUS_TTL_S)
+        broker.redis_client().set(key(task_id), json.dumps(status), ex=_STATUS_TTL_S)
     except redis.RedisError as exc:
         raise Unavailable(f"the task queue (Redis) is not reachable: {exc}") from exc
 
 
-def read_status(task_id: str) -> dict[str, Any] | None:
+def read_status(
+    task_id: str, key: Callable[[str], str] = broker.attempts_status_key
+) -> dict[str, Any] | None:
     try:
-        raw = broker.redis_client().get(broker.attempts_status_key(task_id))
+        raw = broker.redis_client().get(key(task_id))
     except redis.RedisError as exc:
         raise Unavailable(f"the task queue (Redis) is not reachable: {exc}") from exc
     if raw is None:

@@ -19,6 +19,7 @@ import psutil
 import pytest
 from result_files import relative_paths
 
+from core.rooms import MIN_ROOM_VIEWS
 from varbot.services import wait_until
 from varbot.simulated_household import TINY, WORDS, install_tiny_base_model, spoken_commands
 
@@ -92,11 +93,17 @@ def test_a_households_own_clips_in_a_held_out_room_with_mixed_labelling(
     assert [row["command"] for row in result["per_command"]] == WORDS
 
 
-def test_the_training_room_is_scored_before_and_after_by_evaluate_runs(
+def test_the_training_room_is_scored_before_and_after_by_evaluate_runs_each_adapted_to_its_room(
     stack: bench.Stack, folders: tuple[Path, Path], tmp_path: Path
 ) -> None:
     options = ["--room", "unseen_room", "--labelling", "views", "--views", "20", "--household", "checking"]
-    result = _run(stack, folders[0], tmp_path / "checked.json", *options, "--check-room", "training")
+    adapted = ["--adapt-views", str(MIN_ROOM_VIEWS)]
+    options += ["--check-room", "training", *adapted]
+    result = _run(stack, folders[0], tmp_path / "checked.json", *options)
+    adaptation = result["room_adaptation"]
+    assert adaptation["state"] == "done" and adaptation["views"] == MIN_ROOM_VIEWS
+    unadapted = adaptation["unadapted"]
+    assert unadapted["model"] == "active" and unadapted["run_id"] < result["run"]["id"]
     check = result["other_rooms"]["training"]
     assert check["before"]["model"] == "active", "before the fine-tune only the base model is there"
     assert check["after"]["run_id"] > result["run"]["id"] > check["before"]["run_id"]
@@ -105,6 +112,13 @@ def test_the_training_room_is_scored_before_and_after_by_evaluate_runs(
         assert measured == (result["success_after"] is not None), check[when]["note"]
         assert not measured or check[when]["episodes"] == result["episodes"], "the fine-tune's episode count"
     assert result["household"]["robot_settings_at_end"] == {"domain": "unseen_room"}, "back in its own room"
+    parent = bench.sign_in(stack.url, "checking-parent")
+    robot = parent.get("/api/v1/robots").json()[0]["id"]
+    versions = parent.get(f"/api/v1/robots/{robot}/models").json()
+    parent.close()
+    active = next(v for v in versions if v["status"] == "active")
+    candidate = next(v for v in versions if v["run_id"] == result["run"]["id"])
+    assert active["id"] in (adaptation["version_id"], candidate["id"]), "the versions before, given back"
 
 
 def test_attempts_alone_and_views_alone_in_the_other_rooms(

@@ -7,7 +7,7 @@ import io
 from pathlib import Path
 
 import pytest
-from conftest import TINY, Household, Stack, wait_until
+from conftest import TINY, Household, Stack
 from PIL import Image
 
 from varbot.simulated_household import WORDS
@@ -16,15 +16,7 @@ VERDICTS = {"better", "no_change", "worse"}
 
 
 def _attempts(household: Household, robot_id: int, **body: object) -> dict:
-    response = household.client.post(f"/api/v1/robots/{robot_id}/attempts", json=body)
-    assert response.status_code == 202, response.text
-    queued = response.json()
-
-    def ended() -> dict | None:
-        status = household.client.get(f"/api/v1/robots/{robot_id}/attempts/{queued['task_id']}").json()
-        return status if status["state"] in ("done", "refused", "failed") else None
-
-    return {**queued, "status": wait_until(ended, 180, "the attempts task to end", interval=0.5)}
+    return household.robot_task(robot_id, "attempts", "attempts", body, "the attempts task to end")
 
 
 def _judge_every_attempt(household: Household, robot_id: int) -> list[str]:

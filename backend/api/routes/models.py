@@ -1,12 +1,43 @@
-from fastapi import APIRouter
+import uuid
+from typing import Annotated, Literal
 
-from backend import schemas
+from fastapi import APIRouter, Path, status
+from pydantic import BaseModel, Field
+
+from backend import broker, schemas
 from backend.api.responses import errors
 from backend.deps import AdminDep, CallerDep, SessionDep
+from backend.errors import NotFound
 from backend.schemas import PathId
 from backend.services import model_versions, robots
+from backend.services.room_adaptation import adaptation_status, ask_to_adapt
+from core.rooms import MIN_ROOM_VIEWS, ROOM_VIEWS
 
 router = APIRouter(tags=["models"])
+TaskId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="what POST …:adapt-to-room answered")]
+
+
+class AdaptRequest(BaseModel):
+    views: int = Field(
+        default=ROOM_VIEWS, ge=MIN_ROOM_VIEWS, le=5000, description="how many of the newest views to use"
+    )
+    share: float = Field(
+        default=0.5, gt=0.0, le=1.0, description="how far the statistics move toward the room's (1: all)"
+    )
+
+
+class AdaptQueued(BaseModel):
+    task_id: str
+    robot_id: int
+    views: int = Field(description="the views it will use: the robot's newest, at most the number asked")
+    queue: str
+
+
+class AdaptStatus(BaseModel):
+    task_id: str
+    state: Literal["queued", "running", "done", "refused", "failed"]
+    message: str
+    version_id: int | None = Field(default=None, description="the adapted version, made active (when done)")
 
 
 @router.get("/robots/{robot_id}/models", response_model=list[schemas.ModelVersionPublic])
@@ -24,6 +55,33 @@ def rollback(robot_id: PathId, caller: AdminDep, session: SessionDep) -> schemas
     """Make the version that was active before the current one active again (admins)."""
     robot = robots.get_robot(session, caller.household_id, robot_id)
     return model_versions.public(model_versions.rollback(session, robot))
+
+
+@router.post(
+    "/robots/{robot_id}/models:adapt-to-room",
+    response_model=AdaptQueued,
+    status_code=status.HTTP_202_ACCEPTED,
+    responses=errors(409, 503),
+)
+def adapt_to_room(robot_id: PathId, body: AdaptRequest, caller: AdminDep, session: SessionDep) -> AdaptQueued:
+    """Adapt the robot's active model (or its base model) to the room its camera sees, from its newest
+    views, no labels needed: the image encoder's batch-norm statistics move toward the room's, no weight
+    changes. The result becomes the active version (rollback undoes it). Capture views of the room first;
+    after moving the robot, capture new ones and ask again. Follow it with GET …/adaptations/{task_id}."""
+    robot = robots.get_robot(session, caller.household_id, robot_id)
+    task_id = uuid.uuid4().hex
+    views = ask_to_adapt(session, robot, body.views, body.share, task_id)
+    return AdaptQueued(task_id=task_id, robot_id=robot.id, views=views, queue=broker.QUEUE_ROBOT)
+
+
+@router.get("/robots/{robot_id}/adaptations/{task_id}", response_model=AdaptStatus, responses=errors(503))
+def adaptation(robot_id: PathId, task_id: TaskId, caller: CallerDep, session: SessionDep) -> AdaptStatus:
+    """Where an adaptation stands; a refused one says why and what to do."""
+    robot = robots.get_robot(session, caller.household_id, robot_id)
+    found = adaptation_status(task_id)
+    if found is None or found.get("robot_id") != robot.id:
+        raise NotFound("adaptation task", task_id)
+    return AdaptStatus(task_id=task_id, **{k: v for k, v in found.items() if k != "robot_id"})
 
 
 @router.get("/models/{version_id}", response_model=schemas.ModelVersionPublic)

@@ -94,9 +94,35 @@ async function drawModels() {
           onclick: () => modelAction(`/models/${version.id}:activate`, `Version ${version.id} is active now.`) });
     const cell = (label, ...content) => element("td", { "data-label": label }, ...content);
     body.append(element("tr", {}, cell("Version", String(version.id)), cell("Status", element("span", { class: `status-pill ${version.status === "active" ? "succeeded" : ""}`, text: version.status })),
-      cell("From run", version.run_id ? `run ${version.run_id}` : "base"), cell("Figures", figures || "—"), cell("Created", when(version.created_at)), element("td", {}, action)));
+      cell("From run", origin(version)), cell("Figures", figures || "—"), cell("Created", when(version.created_at)), element("td", {}, action)));
   }
   if (!versions.length) body.append(element("tr", {}, element("td", { colspan: 6, class: "muted", text: `No model versions for ${robot.name} yet: once a training run finishes, its version appears here.` })));
+}
+
+function origin(version) {
+  const adapted = version.metrics?.room_adaptation;
+  if (adapted) return `version ${adapted.from_version} adapted to its room (${adapted.views} views)`;
+  return version.run_id ? `run ${version.run_id}` : "base";
+}
+
+async function adaptToRoom(robot) {
+  const button = $("adapt");
+  button.disabled = true;
+  try {
+    const queued = await api(`/robots/${robot.id}/models:adapt-to-room`, { method: "POST", json: {} });
+    say($("models-message"), `Adapting ${robot.name} to its room from its ${queued.views} newest views…`, "ok");
+    let status = queued;
+    while (!["done", "refused", "failed"].includes(status.state)) {
+      await new Promise((resolve) => setTimeout(resolve, 1000));
+      status = await api(`/robots/${robot.id}/adaptations/${queued.task_id}`);
+    }
+    say($("models-message"), status.state === "done" ? `${robot.name}: ${status.message}.` : `Not adapted: ${status.message}`, status.state === "done" ? "ok" : "error");
+  } catch (error) {
+    say($("models-message"), error.message, "error");
+  } finally {
+    button.disabled = false;
+  }
+  await Promise.all([drawModels(), drawRobots()]);
 }
 
 async function modelAction(path, done) {
@@ -139,6 +165,10 @@ async function main() {
     } catch (error) {
       say($("robot-message"), error.message, "error");
     }
+  });
+  $("adapt").addEventListener("click", () => {
+    const robot = picker.current();
+    if (robot) adaptToRoom(robot);
   });
   $("rollback").addEventListener("click", () => {
     const robot = picker.current();

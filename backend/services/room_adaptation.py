@@ -1,0 +1,50 @@
+"""Asking the robot worker to adapt a robot's model to its room (`worker.room_adaptation`), and where such a
+request stands (kept in Redis, as an attempts task's is)."""
+
+from typing import Any
+
+from sqlalchemy import func, select
+from sqlalchemy.orm import Session
+
+from backend import broker, models
+from backend.errors import Conflict, Unavailable
+from backend.services.attempts import read_status, write_status
+from core.rooms import MIN_ROOM_VIEWS
+
+
+def live_views(session: Session, robot: models.Robot) -> int:
+    return (
+        session.scalar(
+            select(func.count())
+            .select_from(models.Snapshot)
+            .where(models.Snapshot.robot_id == robot.id, models.Snapshot.deleted_at.is_(None))
+        )
+        or 0
+    )
+
+
+def ask_to_adapt(session: Session, robot: models.Robot, views: int, share: float, task_id: str) -> int:
+    """Queue the adaptation to the robot's `views` newest views; how many it will use. A robot with too few
+    views is refused at once, saying how many more to capture."""
+    have = live_views(session, robot)
+    if have < MIN_ROOM_VIEWS:
+        raise Conflict(
+            f"robot {robot.id} has {have} camera views and adapting to its room needs at least "
+            f"{MIN_ROOM_VIEWS}: capture {MIN_ROOM_VIEWS - have} more first (POST …/snapshots:capture, or "
+            "the Label page)"
+        )
+    kwargs = {"robot_id": robot.id, "household_id": robot.household_id, "views": views, "share": share}
+    try:
+        write_status(task_id, queued(robot), key=broker.adaptation_status_key)
+        broker.send_task(broker.TASK_ADAPT_TO_ROOM, kwargs, broker.QUEUE_ROBOT, task_id)
+    except broker.BrokerUnavailable as exc:
+        raise Unavailable(f"{exc}; the model was not changed") from exc
+    return min(have, views)
+
+
+def queued(robot: models.Robot) -> dict[str, Any]:
+    return {"state": "queued", "robot_id": robot.id, "message": "waiting for the robot worker"}
+
+
+def adaptation_status(task_id: str) -> dict[str, Any] | None:
+    return read_status(task_id, key=broker.adaptation_status_key)

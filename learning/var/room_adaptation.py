@@ -1,0 +1,91 @@
+"""Seeing a room by its own light: the image encoder's batch-norm statistics moved toward those of the
+room's own camera views, with no labels and no weight changed (adaptive batch normalisation, Li et al. 2016).
+
+A base model normalises each convolution's output with means and variances gathered over its training rooms.
+In a room outside them the same layers see other means, and everything after them is off. The robot's own
+random views of its room measure that room's: the weights stay as trained, only the statistics move, by
+`share` of the way (0.5 by default: bench/results/rooms.json, the `room-adapted-*` entries). The statistics
+the base had are kept with the adapted VAR, so a robot moved again adapts from them, not from the last room.
+"""
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+from torch import nn
+
+from core.rooms import MIN_ROOM_VIEWS
+from learning.var.model import ImageEncoder
+
+BATCH = 100
+DEFAULT_SHARE = 0.5
+CHECKPOINT_KEY = "room_adaptation"  # a VAR checkpoint's record of its adaptation (with `statistics_before`)
+
+Statistics = dict[str, torch.Tensor]  # state-dict keys of the batch norms' running means and variances
+
+
+@dataclass(frozen=True)
+class RoomAdaptation:
+    views: int
+    share: float
+    # how far each layer's mean moved, in the base's standard deviations (mean over channels)
+    mean_shift: list[float]
+    statistics_before: Statistics  # the base's, kept so that a later adaptation starts from them
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"views": self.views, "share": self.share, "mean_shift": self.mean_shift}
+
+
+def check_room_views(images: np.ndarray) -> None:
+    if images.ndim != 4 or images.shape[-1] != 3 or images.dtype != np.uint8:
+        raise ValueError(f"room views must be uint8 (N, H, W, 3) images, got {images.dtype} {images.shape}")
+    if len(images) < MIN_ROOM_VIEWS:
+        raise ValueError(
+            f"adapting to a room needs at least {MIN_ROOM_VIEWS} of its camera views, got {len(images)}: "
+            "capture more views of the room first"
+        )
+
+
+def batch_norm_statistics(encoder: ImageEncoder) -> Statistics:
+    return {
+        key: value.detach().clone()
+        for key, value in encoder.state_dict().items()
+        if key.endswith(("running_mean", "running_var"))
+    }
+
+
+@torch.no_grad()
+def adapt_to_room(
+    encoder: ImageEncoder,
+    images: np.ndarray,
+    share: float = DEFAULT_SHARE,
+    statistics_before: Statistics | None = None,
+) -> RoomAdaptation:
+    """Move the encoder's batch-norm statistics `share` of the way from `statistics_before` (default: its
+    own) to those of `images`, uint8 views of one room taken as the robot moves. In place; eval mode after."""
+    if not 0.0 < share <= 1.0:
+        raise ValueError(f"share must be in (0, 1], got {share}")
+    check_room_views(images)
+    before = statistics_before or batch_norm_statistics(encoder)
+    norms = [module for module in encoder.features.modules() if isinstance(module, nn.BatchNorm2d)]
+    encoder.eval()
+    for norm in norms:
+        norm.reset_running_stats()
+        norm.momentum = None  # a plain average over all batches, not a moving one
+        norm.train()
+    try:
+        for start in range(0, len(images), BATCH):
+            encoder.hidden(torch.from_numpy(np.ascontiguousarray(images[start : start + BATCH])))
+    finally:
+        for norm in norms:
+            norm.momentum = 0.1
+            norm.eval()
+    room = batch_norm_statistics(encoder)
+    blended = {key: share * room[key] + (1.0 - share) * before[key] for key in before}
+    encoder.load_state_dict(blended, strict=False)
+    shifts = []
+    for key in sorted(k for k in before if k.endswith("running_mean")):
+        spread = before[key.replace("running_mean", "running_var")].add(1e-5).sqrt()
+        shifts.append(round(float(((blended[key] - before[key]).abs() / spread).mean()), 4))
+    return RoomAdaptation(len(images), share, shifts, before)

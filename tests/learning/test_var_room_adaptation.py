@@ -1,0 +1,86 @@
+"""A VAR's image encoder adapted to a room from the room's own views (adaptive batch normalisation): the
+statistics move, by the share asked, and nothing else does; too few views, or views that are not images,
+are refused with what to do."""
+
+import numpy as np
+import pytest
+import torch
+
+from core.rooms import MIN_ROOM_VIEWS
+from learning.var.model import VAR, VARConfig
+from learning.var.room_adaptation import adapt_to_room, batch_norm_statistics
+
+SIZE = 16
+
+
+def _encoder() -> torch.nn.Module:
+    torch.manual_seed(0)
+    var = VAR(VARConfig(image_size=SIZE))
+    var.train()
+    training_room = torch.randint(0, 256, (64, SIZE, SIZE, 3), dtype=torch.uint8)
+    with torch.no_grad():
+        for _ in range(20):  # statistics of a "training room": uniform colours
+            var.image_encoder.hidden(training_room)
+    return var.image_encoder.eval()
+
+
+def _room(views: int = MIN_ROOM_VIEWS, seed: int = 1) -> np.ndarray:
+    """A darker, warmer room than the training one."""
+    rng = np.random.default_rng(seed)
+    return (rng.integers(0, 120, (views, SIZE, SIZE, 3)) * np.array([1.0, 0.6, 0.4])).astype(np.uint8)
+
+
+def test_the_statistics_move_toward_the_rooms_and_no_weight_changes() -> None:
+    encoder = _encoder()
+    weights = {k: v.clone() for k, v in encoder.named_parameters()}
+    before = batch_norm_statistics(encoder)
+
+    adaptation = adapt_to_room(encoder, _room(), share=1.0)
+
+    assert all(torch.equal(weights[k], v) for k, v in encoder.named_parameters())
+    after = batch_norm_statistics(encoder)
+    assert all(not torch.allclose(after[k], before[k]) for k in before)
+    assert adaptation.views == MIN_ROOM_VIEWS and len(adaptation.mean_shift) == len(before) // 2
+    assert adaptation.mean_shift[0] > 0.1 and min(adaptation.mean_shift) > 0
+    assert not encoder.training, "left ready to act"
+    first = encoder.features[0]
+    with torch.no_grad():
+        x = torch.from_numpy(_room()).permute(0, 3, 1, 2).float().div(127.5).sub(1.0)
+        normalised = (first[0](x) - first[1].running_mean[None, :, None, None]) / first[1].running_var[
+            None, :, None, None
+        ].add(first[1].eps).sqrt()
+    assert normalised.mean(dim=(0, 2, 3)).abs().max() < 1e-3, "the room's first layer is centred"
+
+
+def test_half_the_share_moves_the_statistics_half_the_way() -> None:
+    full, half = _encoder(), _encoder()
+    before = batch_norm_statistics(full)
+    adapt_to_room(full, _room(), share=1.0)
+    adapt_to_room(half, _room(), share=0.5)
+    room, halfway = batch_norm_statistics(full), batch_norm_statistics(half)
+    for key in before:
+        torch.testing.assert_close(halfway[key], (before[key] + room[key]) / 2)
+
+
+def test_a_robot_moved_again_adapts_from_the_base_statistics_not_the_last_rooms() -> None:
+    encoder = _encoder()
+    first = adapt_to_room(encoder, _room(seed=1), share=0.5)
+    adapt_to_room(encoder, _room(seed=2) // 2, share=0.5, statistics_before=first.statistics_before)
+    fresh = _encoder()
+    adapt_to_room(fresh, _room(seed=2) // 2, share=0.5)
+    moved, direct = batch_norm_statistics(encoder), batch_norm_statistics(fresh)
+    for key in moved:
+        torch.testing.assert_close(moved[key], direct[key])
+
+
+def test_too_few_views_or_views_that_are_not_images_are_refused_with_what_to_do() -> None:
+    encoder = _encoder()
+    before = batch_norm_statistics(encoder)
+    refusal = f"at least {MIN_ROOM_VIEWS} of its camera views, got 10: capture more"
+    with pytest.raises(ValueError, match=refusal):
+        adapt_to_room(encoder, _room(views=10))
+    with pytest.raises(ValueError, match="must be uint8"):
+        adapt_to_room(encoder, _room().astype(np.float32))
+    with pytest.raises(ValueError, match="share must be in"):
+        adapt_to_room(encoder, _room(), share=0.0)
+    assert all(torch.equal(before[k], v) for k, v in batch_norm_statistics(encoder).items()), "nothing moved"

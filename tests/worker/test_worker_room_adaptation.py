@@ -1,0 +1,79 @@
+"""A robot's model adapted to its room through the API, Redis and the robot worker: its newest camera views,
+with no labels, move the batch-norm statistics of its VAR (and of a policy's VAR view); the result is the
+active version, a rollback undoes it, and a fine-tune from it keeps the room's statistics. A robot with too
+few views is told how many more to capture."""
+
+import io
+
+import torch
+from conftest import TINY, Household, Stack
+
+from core.rooms import MIN_ROOM_VIEWS
+
+
+def _adapt(household: Household, robot_id: int, **body: object) -> dict:
+    return household.robot_task(robot_id, "models:adapt-to-room", "adaptations", body, "the adaptation")
+
+
+def _var_state(version: dict) -> dict[str, torch.Tensor]:
+    from backend import models
+    from backend.db import get_session_factory
+    from backend.deps import get_blob_store
+
+    with get_session_factory()() as session:
+        key = session.get_one(models.ModelVersion, version["id"]).var_key
+    return torch.load(io.BytesIO(get_blob_store().get(key)), weights_only=True)["state_dict"]
+
+
+def _split(state: dict[str, torch.Tensor]) -> tuple[dict, dict]:
+    """(the image encoder's batch-norm statistics, every weight)"""
+    statistics = {k: v for k, v in state.items() if k.startswith("image_encoder.") and "running_" in k}
+    weights = {k: v for k, v in state.items() if "running_" not in k and "num_batches" not in k}
+    return statistics, weights
+
+
+def test_a_robot_adapts_to_its_room_from_its_views_and_a_fine_tune_keeps_the_rooms_statistics(
+    stack: Stack, household: Household, base_model, training_worker
+) -> None:  # type: ignore[no-untyped-def]
+    robot = household.new_robot("room-adapting-arm", views=MIN_ROOM_VIEWS + 6)
+    household.client.patch(f"/api/v1/robots/{robot}", json={"settings": {"domain": "unseen_room"}})
+    adapted = _adapt(household, robot, views=MIN_ROOM_VIEWS, share=0.5)
+
+    assert adapted["views"] == MIN_ROOM_VIEWS
+    assert adapted["status"]["state"] == "done", adapted["status"]
+    versions = {v["id"]: v for v in household.versions(robot)}
+    active = versions[adapted["status"]["version_id"]]
+    base = versions[active["parent_id"]]
+    assert active["status"] == "active" and base["status"] == "retired"
+    assert f"adapted to this room's {MIN_ROOM_VIEWS} newest camera views" in active["notes"]
+    record = active["metrics"]["room_adaptation"]
+    assert (record["views"], record["share"], record["from_version"]) == (MIN_ROOM_VIEWS, 0.5, base["id"])
+    assert active["metrics"]["base_model"] == base["metrics"]["base_model"], "its base's record is kept"
+    base_statistics, base_weights = _split(_var_state(base))
+    statistics, weights = _split(_var_state(active))
+    assert all(torch.equal(base_weights[k], weights[k]) for k in base_weights), "no weight changed"
+    assert all(not torch.equal(base_statistics[k], statistics[k]) for k in base_statistics)
+
+    run = household.wait_run(household.start_run(robot, **TINY)["id"], 300)
+    assert run["status"] == "succeeded", run["error"]
+    candidate = next(v for v in household.versions(robot) if v["run_id"] == run["id"])
+    tuned_statistics, tuned_weights = _split(_var_state(candidate))
+    assert all(torch.equal(statistics[k], tuned_statistics[k]) for k in statistics), "the room's, kept"
+    assert any(not torch.equal(weights[k], tuned_weights[k]) for k in weights), "while the weights learnt"
+
+    if candidate["status"] == "active":
+        household.client.post(f"/api/v1/robots/{robot}/models:rollback").raise_for_status()
+    rolled = household.client.post(f"/api/v1/robots/{robot}/models:rollback")
+    assert rolled.status_code == 200 and rolled.json()["id"] == base["id"], "a rollback undoes it"
+
+
+def test_a_robot_with_too_few_views_is_told_how_many_more_to_capture(
+    stack: Stack, household: Household, base_model
+) -> None:  # type: ignore[no-untyped-def]
+    robot = household.new_robot("few-views-arm", views=10)
+    refused = household.client.post(f"/api/v1/robots/{robot}/models:adapt-to-room", json={})
+    assert refused.status_code == 409
+    assert f"needs at least {MIN_ROOM_VIEWS}: capture {MIN_ROOM_VIEWS - 10} more" in refused.text
+    too_few = household.client.post(f"/api/v1/robots/{robot}/models:adapt-to-room", json={"views": 5})
+    assert too_few.status_code == 422 and "views" in too_few.text
+    assert not household.versions(robot), "no model was made"

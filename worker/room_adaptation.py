@@ -1,0 +1,143 @@
+"""A robot's model adapted to the room its camera sees (the robot queue's `adapt_to_room`): the robot's
+newest views, unlabelled, move the batch-norm statistics of its VAR's image encoder and of its policy's
+frozen VAR view (`learning.var.room_adaptation`). The result is a new model version, made active at once
+(it changes no weight, and the Admin page's rollback undoes it); runs, attempts and the scene use it as any
+other version."""
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from sqlalchemy import select
+
+from backend import models
+from backend.db import get_session_factory
+from backend.deps import get_blob_store
+from backend.services import model_versions
+from core.paths import data_subdir
+from core.robots import world_of_kind
+from learning.var.room_adaptation import CHECKPOINT_KEY
+from worker.household import decoded_image
+from worker.run_context import active_or_base, materialise
+
+ADAPTATION = CHECKPOINT_KEY  # the adaptation's record: in the VAR checkpoint, and in the version's metrics
+
+# what the VAR checkpoint says of where it came from (its optimiser state is left behind)
+KEPT_CHECKPOINT_KEYS = ("manifest_hash", "sound_set", "world", "refit", "room_invariance", "finetuned_on")
+
+
+class AdaptationRefused(ValueError):
+    """What cannot be adapted, with what to do."""
+
+
+def adapt_robot_to_room(
+    robot_id: int, household_id: int, views: int, share: float, task_id: str | None = None
+) -> dict[str, Any]:
+    """Adapt the robot's active model (or its base model) to its `views` newest snapshots; the new active
+    version's id and what changed."""
+    blobs = get_blob_store()
+    with get_session_factory()() as session:
+        robot = session.get(models.Robot, robot_id)
+        if robot is None or robot.household_id != household_id:
+            raise AdaptationRefused(f"robot {robot_id} of household {household_id} does not exist")
+        parent = active_or_base(session, blobs, robot, world_of_kind(robot.kind))
+        if parent.var_key is None:
+            raise AdaptationRefused(
+                f"the active version {parent.id} has no VAR to adapt: activate one that has"
+            )
+        folder = data_subdir("room_adaptation", f"robot-{robot.id}", task_id or f"from-{parent.id}")
+        var_path = materialise(blobs, parent.var_key, folder / "parent" / "var.pt")
+        policy_path = None
+        if parent.policy_key is not None:
+            policy_path = materialise(blobs, parent.policy_key, folder / "parent" / "policy.pt")
+        snapshot_ids, images = newest_views(session, blobs, robot, views, _image_size(var_path))
+        var_out, policy_out, record = adapted_files(var_path, policy_path, images, share, folder)
+        record = {
+            **record,
+            "snapshots": [int(snapshot_ids[0]), int(snapshot_ids[-1])],
+            "from_version": parent.id,
+        }
+        version = model_versions.create_version(
+            session,
+            robot,
+            var_key=blobs.put(var_out.read_bytes()),
+            policy_key=blobs.put(policy_out.read_bytes()) if policy_out is not None else None,
+            parent_id=parent.id,
+            metrics={**_kept_metrics(parent), ADAPTATION: record},
+            notes=f"version {parent.id} adapted to this room's {record['views']} newest camera views "
+            f"(batch-norm statistics moved {record['share']:.0%} of the way; no weight changed)",
+        )
+        model_versions.activate(session, version)  # commits
+        return {"robot_id": robot.id, "version_id": version.id, **record}
+
+
+def newest_views(
+    session: Any, blobs: Any, robot: models.Robot, count: int, image_size: int
+) -> tuple[list[int], np.ndarray]:
+    """The robot's `count` newest live snapshots (oldest first) as uint8 images at the VAR's size."""
+    from core.rooms import MIN_ROOM_VIEWS
+
+    rows = list(
+        session.scalars(
+            select(models.Snapshot)
+            .where(models.Snapshot.robot_id == robot.id, models.Snapshot.deleted_at.is_(None))
+            .order_by(models.Snapshot.id.desc())
+            .limit(count)
+        )
+    )[::-1]
+    if len(rows) < MIN_ROOM_VIEWS:
+        raise AdaptationRefused(
+            f"robot {robot.id} has {len(rows)} camera views and adapting to its room needs at least "
+            f"{MIN_ROOM_VIEWS}: capture {MIN_ROOM_VIEWS - len(rows)} more (Label page, or POST "
+            "…/snapshots:capture), then ask again"
+        )
+    return [row.id for row in rows], np.stack(
+        [decoded_image(blobs.get(row.image_key), image_size) for row in rows]
+    )
+
+
+def adapted_files(
+    var_path: Path, policy_path: Path | None, images: np.ndarray, share: float, folder: Path
+) -> tuple[Path, Path | None, dict[str, Any]]:
+    """The VAR (and the policy, when it sees through the VAR) with statistics adapted to `images`."""
+    from learning.rl.checkpoints import policy_with_view, read_policy_checkpoint
+    from learning.var.checkpoint import load_var, read_checkpoint, save_var
+    from learning.var.room_adaptation import adapt_to_room
+
+    payload = read_checkpoint(var_path)
+    var = load_var(var_path)
+    earlier = payload.get(ADAPTATION) or {}
+    adaptation = adapt_to_room(var.image_encoder, images, share, earlier.get("statistics_before"))
+    record = adaptation.to_dict()
+    extra = {
+        key: value
+        for key, value in payload.items()
+        if key not in ("kind", "format_version", "config", "state_dict")
+    }
+    var_out = save_var(
+        var,
+        folder / "var.pt",
+        **{**extra, ADAPTATION: {**record, "statistics_before": adaptation.statistics_before}},
+    )
+    policy_out = None
+    if policy_path is not None:
+        sees_through_var = read_policy_checkpoint(policy_path)["policy_config"].get("view_var") is not None
+        policy_out = folder / "policy.pt"
+        if sees_through_var:
+            policy_with_view(policy_path, var.image_encoder.state_dict(), policy_out)
+        else:
+            policy_out.write_bytes(policy_path.read_bytes())
+        record["policy_view_adapted"] = sees_through_var
+    return var_out, policy_out, record
+
+
+def _kept_metrics(parent: models.ModelVersion) -> dict[str, Any]:
+    """What a version's metrics say of where it came from that still holds after adapting (the base model's
+    record names the rooms its policy replays)."""
+    return {key: value for key, value in (parent.metrics or {}).items() if key == "base_model"}
+
+
+def _image_size(var_path: Path) -> int:
+    from learning.var.checkpoint import read_checkpoint
+
+    return int(read_checkpoint(var_path)["config"]["image_size"])
