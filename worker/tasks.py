@@ -101,10 +101,9 @@ def adapt_to_room(self: Task, robot_id: int, household_id: int, views: int, shar
     except Exception as error:
         report("failed", f"{type(error).__name__}: {error}; the active model was not changed")
         raise
-    report("done", f"version {result['version_id']} is active: adapted to {result['views']} views",
-           result["version_id"])  # fmt: skip
+    report("done", f"version {result['version_id']} is active: {result['notes']}", result["version_id"])
     logger.info("robot %s adapted to its room: version %s", robot_id, result["version_id"])
-    return {k: v for k, v in result.items() if k != "mean_shift"}
+    return {k: v for k, v in result.items() if k not in ("mean_shift", "notes")}
 
 
 @app.task(name=broker.TASK_TRY_COMMANDS, **_ROBOT)

@@ -25,9 +25,9 @@ def live_views(session: Session, robot: models.Robot) -> int:
 
 def ask_to_adapt(session: Session, robot: models.Robot, views: int, share: float, task_id: str) -> int:
     """Queue the adaptation to the robot's `views` newest views; how many it will use. A robot with too few
-    views is refused at once, saying how many more to capture."""
+    views is refused at once, saying how many more to capture (share 0 needs none)."""
     have = live_views(session, robot)
-    if have < MIN_ROOM_VIEWS:
+    if share > 0 and have < MIN_ROOM_VIEWS:
         raise Conflict(
             f"robot {robot.id} has {have} camera views and adapting to its room needs at least "
             f"{MIN_ROOM_VIEWS}: capture {MIN_ROOM_VIEWS - have} more first (POST …/snapshots:capture, or "
@@ -39,7 +39,7 @@ def ask_to_adapt(session: Session, robot: models.Robot, views: int, share: float
         broker.send_task(broker.TASK_ADAPT_TO_ROOM, kwargs, broker.QUEUE_ROBOT, task_id)
     except broker.BrokerUnavailable as exc:
         raise Unavailable(f"{exc}; the model was not changed") from exc
-    return min(have, views)
+    return min(have, views) if share > 0 else 0
 
 
 def queued(robot: models.Robot) -> dict[str, Any]:

@@ -63,11 +63,16 @@ def adapt_to_room(
     statistics_before: Statistics | None = None,
 ) -> RoomAdaptation:
     """Move the encoder's batch-norm statistics `share` of the way from `statistics_before` (default: its
-    own) to those of `images`, uint8 views of one room taken as the robot moves. In place; eval mode after."""
-    if not 0.0 < share <= 1.0:
-        raise ValueError(f"share must be in (0, 1], got {share}")
-    check_room_views(images)
+    own) to those of `images`, uint8 views of one room taken as the robot moves. In place; eval mode after.
+    Share 0 gives back `statistics_before` (the base model's: for a robot back in its training room, where
+    they fit best) and needs no views."""
+    if not 0.0 <= share <= 1.0:
+        raise ValueError(f"share must be from 0 to 1, got {share}")
     before = statistics_before or batch_norm_statistics(encoder)
+    if share == 0.0:
+        encoder.load_state_dict(before, strict=False)
+        return RoomAdaptation(0, share, [0.0] * (len(before) // 2), before)
+    check_room_views(images)
     norms = [module for module in encoder.features.modules() if isinstance(module, nn.BatchNorm2d)]
     encoder.eval()
     for norm in norms:

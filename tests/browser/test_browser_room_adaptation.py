@@ -40,7 +40,7 @@ def test_an_admin_adapts_a_robot_to_its_room_and_the_versions_say_so(
         message.filter(has_text="is active").wait_for(timeout=60_000)
     except Exception:
         pytest.fail(f"{message.inner_text()!r}; worker log: {stack.log('worker-robot-adapting')[-3000:]}")
-    assert f"adapted to {MIN_ROOM_VIEWS} views" in message.inner_text()
+    assert f"adapted to this room's {MIN_ROOM_VIEWS} newest camera views" in message.inner_text()
     page.locator("#models", has_text="adapted to its room").wait_for()
     rows = page.locator("#models tr")
     assert rows.count() == 2, "the base model it started from, and the adapted version"

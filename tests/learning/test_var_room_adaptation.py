@@ -73,6 +73,15 @@ def test_a_robot_moved_again_adapts_from_the_base_statistics_not_the_last_rooms(
         torch.testing.assert_close(moved[key], direct[key])
 
 
+def test_share_zero_gives_back_the_base_statistics_without_views() -> None:
+    encoder = _encoder()
+    base = batch_norm_statistics(encoder)
+    first = adapt_to_room(encoder, _room(), share=0.5)
+    back = adapt_to_room(encoder, _room(views=0), share=0.0, statistics_before=first.statistics_before)
+    assert back.views == 0 and back.mean_shift == [0.0] * (len(base) // 2)
+    assert all(torch.equal(base[k], v) for k, v in batch_norm_statistics(encoder).items())
+
+
 def test_too_few_views_or_views_that_are_not_images_are_refused_with_what_to_do() -> None:
     encoder = _encoder()
     before = batch_norm_statistics(encoder)
@@ -81,6 +90,6 @@ def test_too_few_views_or_views_that_are_not_images_are_refused_with_what_to_do(
         adapt_to_room(encoder, _room(views=10))
     with pytest.raises(ValueError, match="must be uint8"):
         adapt_to_room(encoder, _room().astype(np.float32))
-    with pytest.raises(ValueError, match="share must be in"):
-        adapt_to_room(encoder, _room(), share=0.0)
+    with pytest.raises(ValueError, match="share must be from 0 to 1"):
+        adapt_to_room(encoder, _room(), share=1.5)
     assert all(torch.equal(before[k], v) for k, v in batch_norm_statistics(encoder).items()), "nothing moved"

@@ -61,6 +61,14 @@ def test_a_robot_adapts_to_its_room_from_its_views_and_a_fine_tune_keeps_the_roo
     assert all(torch.equal(statistics[k], tuned_statistics[k]) for k in statistics), "the room's, kept"
     assert any(not torch.equal(weights[k], tuned_weights[k]) for k in weights), "while the weights learnt"
 
+    back = _adapt(household, robot, share=0.0)
+    assert back["views"] == 0 and back["status"]["state"] == "done", back["status"]
+    restored = next(v for v in household.versions(robot) if v["id"] == back["status"]["version_id"])
+    assert "base model's batch-norm statistics back" in restored["notes"]
+    restored_statistics, _ = _split(_var_state(restored))
+    assert all(torch.equal(base_statistics[k], restored_statistics[k]) for k in base_statistics)
+    household.client.post(f"/api/v1/robots/{robot}/models:rollback").raise_for_status()
+
     if candidate["status"] == "active":
         household.client.post(f"/api/v1/robots/{robot}/models:rollback").raise_for_status()
     rolled = household.client.post(f"/api/v1/robots/{robot}/models:rollback")

@@ -22,7 +22,11 @@ class AdaptRequest(BaseModel):
         default=ROOM_VIEWS, ge=MIN_ROOM_VIEWS, le=5000, description="how many of the newest views to use"
     )
     share: float = Field(
-        default=0.5, gt=0.0, le=1.0, description="how far the statistics move toward the room's (1: all)"
+        default=0.5,
+        ge=0.0,
+        le=1.0,
+        description="how far the statistics move toward the room's (1: all the way; 0: back to the base "
+        "model's, for a robot back in its training room, and no views are needed)",
     )
 
 

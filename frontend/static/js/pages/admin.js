@@ -101,6 +101,7 @@ async function drawModels() {
 
 function origin(version) {
   const adapted = version.metrics?.room_adaptation;
+  if (adapted && adapted.share === 0) return `version ${adapted.from_version} with its base model's view back`;
   if (adapted) return `version ${adapted.from_version} adapted to its room (${adapted.views} views)`;
   return version.run_id ? `run ${version.run_id}` : "base";
 }
