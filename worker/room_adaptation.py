@@ -1,6 +1,7 @@
-"""A robot's model adapted to the room its camera sees (the robot queue's `adapt_to_room`): the robot's
-newest views, unlabelled, move the batch-norm statistics of its VAR's image encoder and of its policy's
-frozen VAR view (`learning.var.room_adaptation`). The result is a new model version, made active at once
+"""A robot's model adapted to the room its camera sees (the robot queue's `adapt_to_room`): views of the
+room, unlabelled (a simulated robot's rendered as it moves at random and never stored, a real one's newest
+frames), move the batch-norm statistics of its VAR's image encoder and of its policy's frozen VAR view
+(`learning.var.room_adaptation`). The result is a new model version, made active at once
 (it changes no weight, and the Admin page's rollback undoes it); runs, attempts and the scene use it as any
 other version."""
 
@@ -16,6 +17,7 @@ from backend.deps import get_blob_store
 from backend.services import model_versions
 from core.paths import data_subdir
 from core.robots import world_of_kind
+from core.rooms import room_of
 from learning.var.room_adaptation import CHECKPOINT_KEY
 from worker.household import decoded_image
 from worker.run_context import active_or_base, materialise
@@ -33,8 +35,9 @@ class AdaptationRefused(ValueError):
 def adapt_robot_to_room(
     robot_id: int, household_id: int, views: int, share: float, task_id: str | None = None
 ) -> dict[str, Any]:
-    """Adapt the robot's active model (or its base model) to its `views` newest snapshots; the new active
-    version's id and what changed."""
+    """Adapt the robot's active model (or its base model) to `views` views of its room: a simulated robot
+    moves at random and its camera's views are used as they come, never stored (they would crowd the Label
+    page); a real one's are its newest stored snapshots. The new active version's id and what changed."""
     blobs = get_blob_store()
     with get_session_factory()() as session:
         robot = session.get(models.Robot, robot_id)
@@ -50,15 +53,9 @@ def adapt_robot_to_room(
         policy_path = None
         if parent.policy_key is not None:
             policy_path = materialise(blobs, parent.policy_key, folder / "parent" / "policy.pt")
-        snapshot_ids, images = [], np.zeros((0, 1, 1, 3), dtype=np.uint8)
-        if share > 0:
-            snapshot_ids, images = newest_views(session, blobs, robot, views, _image_size(var_path))
+        source, images = room_views(session, blobs, robot, views, share, _image_size(var_path))
         var_out, policy_out, record = adapted_files(var_path, policy_path, images, share, folder)
-        record = {
-            **record,
-            "snapshots": [snapshot_ids[0], snapshot_ids[-1]] if snapshot_ids else None,
-            "from_version": parent.id,
-        }
+        record = {**record, "views_from": source, "from_version": parent.id}
         version = model_versions.create_version(
             session,
             robot,
@@ -70,6 +67,24 @@ def adapt_robot_to_room(
         )
         model_versions.activate(session, version)  # commits
         return {"robot_id": robot.id, "version_id": version.id, "notes": version.notes, **record}
+
+
+def room_views(
+    session: Any, blobs: Any, robot: models.Robot, count: int, share: float, image_size: int
+) -> tuple[dict[str, Any] | None, np.ndarray]:
+    """Where the views come from, and the views (none for share 0, which needs none)."""
+    if share == 0:
+        return None, np.zeros((0, image_size, image_size, 3), dtype=np.uint8)
+    if models.RobotKind(robot.kind).simulated:
+        from sim.explore import random_views
+        from worker.capture import fresh_seed
+
+        seed = fresh_seed()
+        room = room_of(robot.settings or {})
+        drawn = random_views(world_of_kind(robot.kind), count, seed=seed, image_size=image_size, domain=room)
+        return {"rendered": count, "seed": seed}, np.stack([image for image, _, _ in drawn])
+    snapshot_ids, images = newest_views(session, blobs, robot, count, image_size)
+    return {"snapshots": [snapshot_ids[0], snapshot_ids[-1]]}, images
 
 
 def newest_views(
@@ -89,8 +104,7 @@ def newest_views(
     if len(rows) < MIN_ROOM_VIEWS:
         raise AdaptationRefused(
             f"robot {robot.id} has {len(rows)} camera views and adapting to its room needs at least "
-            f"{MIN_ROOM_VIEWS}: capture {MIN_ROOM_VIEWS - len(rows)} more (Label page, or POST "
-            "…/snapshots:capture), then ask again"
+            f"{MIN_ROOM_VIEWS}: send {MIN_ROOM_VIEWS - len(rows)} more of its camera frames, then ask again"
         )
     return [row.id for row in rows], np.stack(
         [decoded_image(blobs.get(row.image_key), image_size) for row in rows]
@@ -136,7 +150,7 @@ def _notes(parent_id: int, record: dict[str, Any]) -> str:
     if record["share"] == 0:
         return f"version {parent_id} with its base model's batch-norm statistics back (no weight changed)"
     return (
-        f"version {parent_id} adapted to this room's {record['views']} newest camera views (batch-norm "
+        f"version {parent_id} adapted to {record['views']} camera views of this room (batch-norm "
         f"statistics moved {record['share']:.0%} of the way; no weight changed)"
     )
 

@@ -24,22 +24,30 @@ def live_views(session: Session, robot: models.Robot) -> int:
 
 
 def ask_to_adapt(session: Session, robot: models.Robot, views: int, share: float, task_id: str) -> int:
-    """Queue the adaptation to the robot's `views` newest views; how many it will use. A robot with too few
-    views is refused at once, saying how many more to capture (share 0 needs none)."""
+    """Queue the adaptation to `views` views of the robot's room; how many it will use. A simulated robot's
+    are rendered by the robot worker; a real one's are its newest stored views, and a real robot with too
+    few is refused at once, saying how many more to capture (share 0 needs none)."""
+    if models.RobotKind(robot.kind).simulated or share == 0:
+        queue_adaptation(robot, views, share, task_id)
+        return views if share > 0 else 0  # a simulated robot's views are rendered for it
     have = live_views(session, robot)
-    if share > 0 and have < MIN_ROOM_VIEWS:
+    if have < MIN_ROOM_VIEWS:
         raise Conflict(
             f"robot {robot.id} has {have} camera views and adapting to its room needs at least "
-            f"{MIN_ROOM_VIEWS}: capture {MIN_ROOM_VIEWS - have} more first (POST …/snapshots:capture, or "
-            "the Label page)"
+            f"{MIN_ROOM_VIEWS}: send {MIN_ROOM_VIEWS - have} more of its camera frames first (POST "
+            "…/snapshots, or …/snapshots:capture for an arm the robot worker drives)"
         )
+    queue_adaptation(robot, views, share, task_id)
+    return min(have, views)
+
+
+def queue_adaptation(robot: models.Robot, views: int, share: float, task_id: str) -> None:
     kwargs = {"robot_id": robot.id, "household_id": robot.household_id, "views": views, "share": share}
     try:
         write_status(task_id, queued(robot), key=broker.adaptation_status_key)
         broker.send_task(broker.TASK_ADAPT_TO_ROOM, kwargs, broker.QUEUE_ROBOT, task_id)
     except broker.BrokerUnavailable as exc:
         raise Unavailable(f"{exc}; the model was not changed") from exc
-    return min(have, views) if share > 0 else 0
 
 
 def queued(robot: models.Robot) -> dict[str, Any]:

@@ -7,6 +7,7 @@ import io
 
 import torch
 from conftest import TINY, Household, Stack
+from PIL import Image
 
 from core.rooms import MIN_ROOM_VIEWS
 
@@ -35,17 +36,19 @@ def _split(state: dict[str, torch.Tensor]) -> tuple[dict, dict]:
 def test_a_robot_adapts_to_its_room_from_its_views_and_a_fine_tune_keeps_the_rooms_statistics(
     stack: Stack, household: Household, base_model, training_worker
 ) -> None:  # type: ignore[no-untyped-def]
-    robot = household.new_robot("room-adapting-arm", views=MIN_ROOM_VIEWS + 6)
+    robot = household.new_robot("room-adapting-arm", views=20)
     household.client.patch(f"/api/v1/robots/{robot}", json={"settings": {"domain": "unseen_room"}})
     adapted = _adapt(household, robot, views=MIN_ROOM_VIEWS, share=0.5)
 
     assert adapted["views"] == MIN_ROOM_VIEWS
     assert adapted["status"]["state"] == "done", adapted["status"]
+    assert len(household.snapshots(robot)) == 20, "the views it rendered were not stored for labelling"
     versions = {v["id"]: v for v in household.versions(robot)}
     active = versions[adapted["status"]["version_id"]]
     base = versions[active["parent_id"]]
     assert active["status"] == "active" and base["status"] == "retired"
-    assert f"adapted to this room's {MIN_ROOM_VIEWS} newest camera views" in active["notes"]
+    assert f"adapted to {MIN_ROOM_VIEWS} camera views of this room" in active["notes"]
+    assert active["metrics"]["room_adaptation"]["views_from"]["rendered"] == MIN_ROOM_VIEWS
     record = active["metrics"]["room_adaptation"]
     assert (record["views"], record["share"], record["from_version"]) == (MIN_ROOM_VIEWS, 0.5, base["id"])
     assert active["metrics"]["base_model"] == base["metrics"]["base_model"], "its base's record is kept"
@@ -75,13 +78,22 @@ def test_a_robot_adapts_to_its_room_from_its_views_and_a_fine_tune_keeps_the_roo
     assert rolled.status_code == 200 and rolled.json()["id"] == base["id"], "a rollback undoes it"
 
 
-def test_a_robot_with_too_few_views_is_told_how_many_more_to_capture(
+def test_a_real_robot_with_too_few_frames_is_told_how_many_more_to_send(
     stack: Stack, household: Household, base_model
 ) -> None:  # type: ignore[no-untyped-def]
-    robot = household.new_robot("few-views-arm", views=10)
+    body = {"name": "frames-only arm", "kind": "kinova-real"}
+    robot = household.client.post("/api/v1/robots", json=body).json()["id"]
+    for shade in range(10):
+        frame = io.BytesIO()
+        Image.new("RGB", (16, 16), (shade * 20, 90, 120)).save(frame, format="PNG")
+        sent = household.client.post(
+            f"/api/v1/robots/{robot}/snapshots", files={"image": ("frame.png", frame.getvalue(), "image/png")}
+        )
+        assert sent.status_code == 201, sent.text
     refused = household.client.post(f"/api/v1/robots/{robot}/models:adapt-to-room", json={})
     assert refused.status_code == 409
-    assert f"needs at least {MIN_ROOM_VIEWS}: capture {MIN_ROOM_VIEWS - 10} more" in refused.text
+    said = f"needs at least {MIN_ROOM_VIEWS}: send {MIN_ROOM_VIEWS - 10} more of its camera frames"
+    assert said in refused.text
     too_few = household.client.post(f"/api/v1/robots/{robot}/models:adapt-to-room", json={"views": 5})
     assert too_few.status_code == 422 and "views" in too_few.text
     assert not household.versions(robot), "no model was made"

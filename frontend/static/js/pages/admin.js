@@ -111,7 +111,7 @@ async function adaptToRoom(robot) {
   button.disabled = true;
   try {
     const queued = await api(`/robots/${robot.id}/models:adapt-to-room`, { method: "POST", json: {} });
-    say($("models-message"), `Adapting ${robot.name} to its room from its ${queued.views} newest views…`, "ok");
+    say($("models-message"), `Adapting ${robot.name} to its room from ${queued.views} views of it…`, "ok");
     let status = queued;
     while (!["done", "refused", "failed"].includes(status.state)) {
       await new Promise((resolve) => setTimeout(resolve, 1000));
