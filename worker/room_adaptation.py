@@ -5,6 +5,7 @@ frames), move the batch-norm statistics of its VAR's image encoder and of its po
 (it changes no weight, and the Admin page's rollback undoes it); runs, attempts and the scene use it as any
 other version."""
 
+import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -32,9 +33,7 @@ class AdaptationRefused(ValueError):
     """What cannot be adapted, with what to do."""
 
 
-def adapt_robot_to_room(
-    robot_id: int, household_id: int, views: int, share: float, task_id: str | None = None
-) -> dict[str, Any]:
+def adapt_robot_to_room(robot_id: int, household_id: int, views: int, share: float) -> dict[str, Any]:
     """Adapt the robot's active model (or its base model) to `views` views of its room: a simulated robot
     moves at random and its camera's views are used as they come, never stored (they would crowd the Label
     page); a real one's are its newest stored snapshots. The new active version's id and what changed."""
@@ -48,25 +47,43 @@ def adapt_robot_to_room(
             raise AdaptationRefused(
                 f"the active version {parent.id} has no VAR to adapt: activate one that has"
             )
-        folder = data_subdir("room_adaptation", f"robot-{robot.id}", task_id or f"from-{parent.id}")
-        var_path = materialise(blobs, parent.var_key, folder / "parent" / "var.pt")
-        policy_path = None
-        if parent.policy_key is not None:
-            policy_path = materialise(blobs, parent.policy_key, folder / "parent" / "policy.pt")
-        source, images = room_views(session, blobs, robot, views, share, _image_size(var_path))
-        var_out, policy_out, record = adapted_files(var_path, policy_path, images, share, folder)
-        record = {**record, "views_from": source, "from_version": parent.id}
-        version = model_versions.create_version(
-            session,
-            robot,
-            var_key=blobs.put(var_out.read_bytes()),
-            policy_key=blobs.put(policy_out.read_bytes()) if policy_out is not None else None,
-            parent_id=parent.id,
-            metrics={**_kept_metrics(parent), ADAPTATION: record},
-            notes=_notes(parent.id, record),
-        )
+        with tempfile.TemporaryDirectory(dir=data_subdir("room_adaptation")) as work:
+            version = _adapted_version(session, blobs, robot, parent, views, share, Path(work))
         model_versions.activate(session, version)  # commits
-        return {"robot_id": robot.id, "version_id": version.id, "notes": version.notes, **record}
+        return {
+            "robot_id": robot.id,
+            "version_id": version.id,
+            "notes": version.notes,
+            **version.metrics[ADAPTATION],
+        }
+
+
+def _adapted_version(
+    session: Any,
+    blobs: Any,
+    robot: models.Robot,
+    parent: models.ModelVersion,
+    views: int,
+    share: float,
+    folder: Path,
+) -> models.ModelVersion:
+    """The adapted files made in `folder` (a scratch folder) and stored as a new candidate version."""
+    var_path = materialise(blobs, str(parent.var_key), folder / "parent" / "var.pt")
+    policy_path = None
+    if parent.policy_key is not None:
+        policy_path = materialise(blobs, parent.policy_key, folder / "parent" / "policy.pt")
+    source, images = room_views(session, blobs, robot, views, share, _image_size(var_path))
+    var_out, policy_out, record = adapted_files(var_path, policy_path, images, share, folder)
+    record = {**record, "views_from": source, "from_version": parent.id}
+    return model_versions.create_version(
+        session,
+        robot,
+        var_key=blobs.put(var_out.read_bytes()),
+        policy_key=blobs.put(policy_out.read_bytes()) if policy_out is not None else None,
+        parent_id=parent.id,
+        metrics={**_kept_metrics(parent), ADAPTATION: record},
+        notes=_notes(parent.id, record),
+    )
 
 
 def room_views(

@@ -94,7 +94,7 @@ def adapt_to_room(self: Task, robot_id: int, household_id: int, views: int, shar
 
     report("running", "adapting the model to the room's views")
     try:
-        result = adapt_robot_to_room(robot_id, household_id, views, share, task_id=self.request.id)
+        result = adapt_robot_to_room(robot_id, household_id, views, share)
     except AdaptationRefused as refusal:
         report("refused", str(refusal))
         return {"robot_id": robot_id, "refused": str(refusal)}

@@ -43,6 +43,7 @@ def test_a_robot_adapts_to_its_room_from_its_views_and_a_fine_tune_keeps_the_roo
     assert adapted["views"] == MIN_ROOM_VIEWS
     assert adapted["status"]["state"] == "done", adapted["status"]
     assert len(household.snapshots(robot)) == 20, "the views it rendered were not stored for labelling"
+    assert not any((stack.root / "data" / "room_adaptation").iterdir()), "no working files left behind"
     versions = {v["id"]: v for v in household.versions(robot)}
     active = versions[adapted["status"]["version_id"]]
     base = versions[active["parent_id"]]
