@@ -116,8 +116,8 @@ def evaluate_base(args: argparse.Namespace, save: Callable[[dict], None]) -> dic
 
 
 def adapted_to(room: str, base: BaseModel, args: argparse.Namespace, folder: Path) -> tuple[Path, Path]:
-    """The base's VAR and policy adapted to `args.adapt_views` random views of `room`, as a household's robot
-    is by POST …/models:adapt-to-room after capturing them (worker.room_adaptation)."""
+    """The base's VAR and policy adapted to `args.adapt_views` random views of `room` drawn with
+    `args.adapt_seed`, as a household's robot is by POST …/models:adapt-to-room (worker.room_adaptation)."""
     import numpy as np
 
     from core.rooms import world_room

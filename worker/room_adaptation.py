@@ -18,7 +18,7 @@ from backend.deps import get_blob_store
 from backend.services import model_versions
 from core.paths import data_subdir
 from core.robots import world_of_kind
-from core.rooms import room_of
+from core.rooms import MIN_ROOM_VIEWS, room_of
 from learning.var.room_adaptation import CHECKPOINT_KEY
 from worker.household import decoded_image
 from worker.run_context import active_or_base, materialise
@@ -108,8 +108,6 @@ def newest_views(
     session: Any, blobs: Any, robot: models.Robot, count: int, image_size: int
 ) -> tuple[list[int], np.ndarray]:
     """The robot's `count` newest live snapshots (oldest first) as uint8 images at the VAR's size."""
-    from core.rooms import MIN_ROOM_VIEWS
-
     rows = list(
         session.scalars(
             select(models.Snapshot)
@@ -141,16 +139,9 @@ def adapted_files(
     earlier = payload.get(ADAPTATION) or {}
     adaptation = adapt_to_room(var.image_encoder, images, share, earlier.get("statistics_before"))
     record = adaptation.to_dict()
-    extra = {
-        key: value
-        for key, value in payload.items()
-        if key not in ("kind", "format_version", "config", "state_dict")
-    }
-    var_out = save_var(
-        var,
-        folder / "var.pt",
-        **{**extra, ADAPTATION: {**record, "statistics_before": adaptation.statistics_before}},
-    )
+    kept = {key: payload[key] for key in KEPT_CHECKPOINT_KEYS if key in payload}
+    adapted = {**record, "statistics_before": adaptation.statistics_before}
+    var_out = save_var(var, folder / "var.pt", **kept, **{ADAPTATION: adapted})
     policy_out = None
     if policy_path is not None:
         sees_through_var = read_policy_checkpoint(policy_path)["policy_config"].get("view_var") is not None

@@ -83,14 +83,14 @@ def capture_snapshots(self: Task, robot_id: int, household_id: int, count: int) 
 
 @app.task(name=broker.TASK_ADAPT_TO_ROOM, **_ROBOT)
 def adapt_to_room(self: Task, robot_id: int, household_id: int, views: int, share: float) -> dict:
-    """The robot's model adapted to its newest views (`worker.room_adaptation`), made active; what cannot
-    be adapted (too few views, no VAR) ends the task as refused, saying what to do."""
-    from backend.services.attempts import write_status
+    """The robot's model adapted to views of its room (`worker.room_adaptation`), made active; what cannot
+    be adapted (a real robot with too few frames, no VAR) ends the task as refused, saying what to do."""
+    from backend.services.task_status import write_status
     from worker.room_adaptation import AdaptationRefused, adapt_robot_to_room
 
     def report(state: str, message: str, version_id: int | None = None) -> None:
         status = {"state": state, "message": message, "version_id": version_id, "robot_id": robot_id}
-        write_status(self.request.id, status, key=broker.adaptation_status_key)
+        write_status(broker.adaptation_status_key(self.request.id), status)
 
     report("running", "adapting the model to the room's views")
     try:

@@ -8,28 +8,24 @@ ordinary is / is-not labels on the final snapshot (`answer_attempt`, the rule is
 triplets, statistics, history and undo (DELETE /labels/{id}) work as for any other answer.
 """
 
-import contextlib
-import json
 import math
 from collections import defaultdict
-from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any
 
-import redis
 from sqlalchemy import select
 from sqlalchemy.orm import Session
 
 from backend import broker, models
 from backend.errors import Conflict, Invalid, NotFound, Unavailable
+from backend.services import task_status
 from backend.services.pair_leases import pair_leases
 from backend.services.snapshots import refund_capture, reserve_capture
 from core.labels import Verdict, command_key
 
 ATTEMPT_SOURCE = "attempt"
 NOTHING = "nothing"  # the answer "it shows none of our commands"
-_STATUS_TTL_S = 7 * 24 * 3600
 _CANDIDATES = 40  # unanswered attempts looked at per request
 
 
@@ -281,27 +277,10 @@ def ask_for_attempts(
         raise Unavailable(f"{exc}; nothing was attempted") from exc
 
 
-def write_status(
-    task_id: str, status: dict[str, Any], key: Callable[[str], str] = broker.attempts_status_key
-) -> None:
-    """A robot task's state (queued, running, done, refused, failed) with a message saying why, under
-    `key(task_id)` (an attempts task's by default); the worker updates it. Raises Unavailable when Redis
-    cannot be reached."""
-    try:
-        broker.redis_client().set(key(task_id), json.dumps(status), ex=_STATUS_TTL_S)
-    except redis.RedisError as exc:
-        raise Unavailable(f"the task queue (Redis) is not reachable: {exc}") from exc
+def write_status(task_id: str, status: dict[str, Any]) -> None:
+    """An attempts task's state (`backend.services.task_status`); the worker updates it."""
+    task_status.write_status(broker.attempts_status_key(task_id), status)
 
 
-def read_status(
-    task_id: str, key: Callable[[str], str] = broker.attempts_status_key
-) -> dict[str, Any] | None:
-    try:
-        raw = broker.redis_client().get(key(task_id))
-    except redis.RedisError as exc:
-        raise Unavailable(f"the task queue (Redis) is not reachable: {exc}") from exc
-    if raw is None:
-        return None
-    with contextlib.suppress(ValueError):
-        return dict(json.loads(raw))
-    return None
+def read_status(task_id: str) -> dict[str, Any] | None:
+    return task_status.read_status(broker.attempts_status_key(task_id))

@@ -8,7 +8,7 @@ from sqlalchemy.orm import Session
 
 from backend import broker, models
 from backend.errors import Conflict, Unavailable
-from backend.services.attempts import read_status, write_status
+from backend.services.task_status import read_status, write_status
 from core.rooms import MIN_ROOM_VIEWS
 
 
@@ -44,7 +44,7 @@ def ask_to_adapt(session: Session, robot: models.Robot, views: int, share: float
 def queue_adaptation(robot: models.Robot, views: int, share: float, task_id: str) -> None:
     kwargs = {"robot_id": robot.id, "household_id": robot.household_id, "views": views, "share": share}
     try:
-        write_status(task_id, queued(robot), key=broker.adaptation_status_key)
+        write_status(broker.adaptation_status_key(task_id), queued(robot))
         broker.send_task(broker.TASK_ADAPT_TO_ROOM, kwargs, broker.QUEUE_ROBOT, task_id)
     except broker.BrokerUnavailable as exc:
         raise Unavailable(f"{exc}; the model was not changed") from exc
@@ -55,4 +55,4 @@ def queued(robot: models.Robot) -> dict[str, Any]:
 
 
 def adaptation_status(task_id: str) -> dict[str, Any] | None:
-    return read_status(task_id, key=broker.adaptation_status_key)
+    return read_status(broker.adaptation_status_key(task_id))

@@ -4,8 +4,9 @@ room's own camera views, with no labels and no weight changed (adaptive batch no
 A base model normalises each convolution's output with means and variances gathered over its training rooms.
 In a room outside them the same layers see other means, and everything after them is off. The robot's own
 random views of its room measure that room's: the weights stay as trained, only the statistics move, by
-`share` of the way (0.5 by default: bench/results/rooms.json, the `room-adapted-*` entries). The statistics
-the base had are kept with the adapted VAR, so a robot moved again adapts from them, not from the last room.
+`share` of the way (0.5 by default, chosen over both held-out rooms; bench/results/rooms.json,
+`room-adapted-0.5`, measures it on other episodes). The statistics the base had are kept with the adapted
+VAR, so a robot moved again adapts from them, not from the last room.
 """
 
 from dataclasses import dataclass

@@ -5,6 +5,7 @@ few views is told how many more to capture."""
 
 import io
 
+import numpy as np
 import torch
 from conftest import TINY, Household, Stack
 from PIL import Image
@@ -98,3 +99,19 @@ def test_a_real_robot_with_too_few_frames_is_told_how_many_more_to_send(
     too_few = household.client.post(f"/api/v1/robots/{robot}/models:adapt-to-room", json={"views": 5})
     assert too_few.status_code == 422 and "views" in too_few.text
     assert not household.versions(robot), "no model was made"
+
+
+def test_an_adapted_var_keeps_where_it_came_from_but_not_a_fine_tunes_optimiser_state(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from learning.var.checkpoint import read_checkpoint, save_var
+    from learning.var.model import VAR, VARConfig
+    from worker.room_adaptation import adapted_files
+
+    parent = save_var(
+        VAR(VARConfig(image_size=16)), tmp_path / "parent.pt", sound_set="wordset",
+        training={"optimizer": {"state": {}}, "epoch": 3},
+    )  # fmt: skip
+    no_views = np.zeros((0, 16, 16, 3), np.uint8)
+    var_out, policy_out, record = adapted_files(parent, None, no_views, 0.0, tmp_path)
+    payload = read_checkpoint(var_out)
+    assert payload["sound_set"] == "wordset" and "training" not in payload
+    assert policy_out is None and record["share"] == 0.0 and "statistics_before" in payload["room_adaptation"]

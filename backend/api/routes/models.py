@@ -19,7 +19,7 @@ TaskId = Annotated[str, Path(pattern=r"^[0-9a-f]{32}$", description="what POST �
 
 class AdaptRequest(BaseModel):
     views: int = Field(
-        default=ROOM_VIEWS, ge=MIN_ROOM_VIEWS, le=5000, description="how many of the newest views to use"
+        default=ROOM_VIEWS, ge=MIN_ROOM_VIEWS, le=5000, description="how many views of the room to use"
     )
     share: float = Field(
         default=0.5,
@@ -33,7 +33,10 @@ class AdaptRequest(BaseModel):
 class AdaptQueued(BaseModel):
     task_id: str
     robot_id: int
-    views: int = Field(description="the views it will use: the robot's newest, at most the number asked")
+    views: int = Field(
+        description="the views it will use: rendered for a simulated robot; a real one's newest frames, at "
+        "most the number asked; none for share 0"
+    )
     queue: str
 
 
@@ -68,10 +71,11 @@ def rollback(robot_id: PathId, caller: AdminDep, session: SessionDep) -> schemas
     responses=errors(409, 503),
 )
 def adapt_to_room(robot_id: PathId, body: AdaptRequest, caller: AdminDep, session: SessionDep) -> AdaptQueued:
-    """Adapt the robot's active model (or its base model) to the room its camera sees, from its newest
-    views, no labels needed: the image encoder's batch-norm statistics move toward the room's, no weight
-    changes. The result becomes the active version (rollback undoes it). Capture views of the room first;
-    after moving the robot, capture new ones and ask again. Follow it with GET …/adaptations/{task_id}."""
+    """Adapt the robot's active model (or its base model) to the room its camera sees, no labels needed: the
+    image encoder's batch-norm statistics move toward those of views of the room (a simulated robot renders
+    them and stores none; a real one's newest frames are used), no weight changes. The result becomes the
+    active version (rollback undoes it). After moving the robot, ask again. Follow it with GET
+    …/adaptations/{task_id}."""
     robot = robots.get_robot(session, caller.household_id, robot_id)
     task_id = uuid.uuid4().hex
     views = ask_to_adapt(session, robot, body.views, body.share, task_id)
