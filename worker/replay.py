@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from worker.household import SILENCE_ROW, HouseholdData
+from worker.household import REPLAYED_VIEW, SILENCE_ROW, HouseholdData
 
 
 class ReplayMissing(RuntimeError):
@@ -109,7 +109,7 @@ def joined_with_replay(  # type: ignore[no-untyped-def]
     rows = np.array(chosen, dtype=np.int64)
     return replace(
         data,
-        snapshot_ids=np.concatenate([data.snapshot_ids, np.full(len(images), -1)]),
+        snapshot_ids=np.concatenate([data.snapshot_ids, np.full(len(images), REPLAYED_VIEW)]),
         images=np.concatenate([data.images, images]),
         sim_heard=np.concatenate([data.sim_heard, heard]),
         clip_ids=np.concatenate([data.clip_ids, np.full(len(rows), -1)]),

@@ -19,7 +19,8 @@ import torch
 from learning.var.checkpoint import load_var, read_checkpoint, save_var
 from learning.var.model import VAR
 from learning.var.room_adaptation import CHECKPOINT_KEY as ROOM_ADAPTATION
-from worker.household import SILENCE_ROW, HouseholdData
+from learning.var.room_adaptation import Statistics, base_statistics, seeing_by
+from worker.household import REPLAYED_VIEW, SILENCE_ROW, HouseholdData
 
 
 class Diverged(RuntimeError):
@@ -67,6 +68,23 @@ def keep_room_statistics(var: VAR) -> None:
             module.eval()
 
 
+def encode_views(
+    var: VAR, images: torch.Tensor, replayed: np.ndarray, replay_statistics: Statistics | None
+) -> torch.Tensor:
+    """f_I of a batch of views. With `replay_statistics` (the base's, for a VAR adapted to the household's
+    room) the `replayed` ones, views of the training room, are seen by them, the household's by the room's."""
+    if replay_statistics is None or not replayed.any():
+        return var.encode_image(images)
+    replayed_rows = torch.from_numpy(np.flatnonzero(replayed))
+    own_rows = torch.from_numpy(np.flatnonzero(~replayed))
+    embedded = torch.empty(len(images), var.config.embedding_dim)
+    with seeing_by(var.image_encoder, replay_statistics):
+        embedded = embedded.index_put((replayed_rows,), var.encode_image(images[replayed_rows]))
+    if len(own_rows):
+        embedded = embedded.index_put((own_rows,), var.encode_image(images[own_rows]))
+    return embedded
+
+
 def finetune_var(
     data: HouseholdData,
     init_checkpoint: Path,
@@ -87,6 +105,7 @@ def finetune_var(
     last, best = work_dir / "last.pt", work_dir / "best.pt"
     init_payload = read_checkpoint(init_checkpoint)
     var = load_var(init_checkpoint)
+    replay_statistics = base_statistics(init_payload)
     optimizer = torch.optim.Adam(var.parameters(), lr=learning_rate)
     generator = torch.Generator().manual_seed(seed)
     state = {"epoch": 0, "step": 0, "best": None, "seconds": 0.0}
@@ -117,7 +136,9 @@ def finetune_var(
                 torch.cat([sound_batch(data, rows[:, 1]), sound_batch(data, rows[:, 2])]), generator
             )
             positive, negative = var.encode_sound(sounds).split(len(rows))
-            loss = triplet_loss(var.encode_image(images), positive, negative, margin)
+            replayed = data.snapshot_ids[rows[:, 0]] == REPLAYED_VIEW
+            anchor = encode_views(var, images, replayed, replay_statistics)
+            loss = triplet_loss(anchor, positive, negative, margin)
             if not torch.isfinite(loss):
                 raise Diverged(f"the triplet loss became {loss.item()} at step {state['step'] + 1}")
             optimizer.zero_grad(set_to_none=True)

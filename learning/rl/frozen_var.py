@@ -8,6 +8,7 @@ from typing import Any
 import torch
 
 from learning.var.model import VAR
+from learning.var.room_adaptation import Statistics, base_statistics
 
 
 @dataclass(frozen=True)
@@ -15,6 +16,8 @@ class LoadedVar:
     model: VAR  # eval mode, no gradients
     path: str | None = None  # None: a VAR made in memory (tests, benchmarks)
     label_counts: dict[str, int] = field(default_factory=dict)  # {"var_triplet_labels": n} when known
+    # a VAR adapted to a room (learning.var.room_adaptation) keeps the base's batch-norm statistics
+    base_statistics: Statistics | None = None
 
     @classmethod
     def in_memory(cls, model: VAR) -> "LoadedVar":
@@ -39,7 +42,9 @@ def load_frozen_var(path: str | Path | None) -> LoadedVar | None:
     payload = read_checkpoint(path)
     model = VAR(VARConfig.from_dict(payload["config"]))
     load_state_into(model, payload, path)
-    return LoadedVar(model.eval().requires_grad_(False), str(path), triplet_labels(payload))
+    return LoadedVar(
+        model.eval().requires_grad_(False), str(path), triplet_labels(payload), base_statistics(payload)
+    )
 
 
 def triplet_labels(payload: dict[str, Any]) -> dict[str, int]:

@@ -61,6 +61,7 @@ from learning.rl.watch import (
     Watcher,
 )
 from learning.var.model import VAR
+from learning.var.room_adaptation import with_statistics
 
 
 @dataclass
@@ -271,6 +272,7 @@ class PPOTrainer:
             raise ValueError("--current-sound needs the training clips of the corpus")
         self.var = var.model.eval().requires_grad_(False) if var is not None else None
         self.var_path = var.path if var is not None else None
+        self.base_statistics = var.base_statistics if var is not None else None
         self.label_counts = dict(var.label_counts) if var is not None and config.goal_encoder == "var" else {}
         self.goals = goals
         self.current_sounds = current_sounds if config.current_sound else None
@@ -290,6 +292,9 @@ class PPOTrainer:
         self.needs_reset = True  # environments are (re-)seeded before the first update and after a resume
         self.policy_sees_var = False  # the policy's view is this VAR's hidden layer (set by `reset_envs`)
         self.views_var: VAR | VarOnDevice | None = None  # the VAR that embeds rendered views (set by `start`)
+        self.replay_views_var: VAR | VarOnDevice | None = None  # the replay rooms' (see `_replay_views_var`)
+        replays = replay_env_indices(config.num_envs, config.replay_envs)
+        self.replay_env_mask = np.array([env in replays for env in range(config.num_envs)])
 
     # -- set-up ----------------------------------------------------------------------------------------------
     def start(self) -> None:
@@ -306,9 +311,12 @@ class PPOTrainer:
         # views are embedded by a copy with its batch norms folded in (a third of f_I's time on the CPU); the
         # VAR itself stays for f_S, the reward's sounds and comparing weights
         self.views_var = self.var.with_batch_norms_folded() if self.var is not None else None
+        self.replay_views_var = self._replay_views_var()
         if self.var is not None and self.device.type != "cpu":
             self.var = VarOnDevice(self.var, self.device)
             self.views_var = VarOnDevice(self.views_var, self.device)
+            if self.replay_views_var is not None:
+                self.replay_views_var = VarOnDevice(self.replay_views_var, self.device)
         # f_S of every clip once, after the thread count is set: the same clips embedded with another number
         # of threads differ in the last bits, and a resumed run would then not repeat the original one exactly
         if self.var is not None and self.goals.embeddings is None:
@@ -390,18 +398,35 @@ class PPOTrainer:
             for name, mine in self.policy.var_view.encoder.state_dict().items()
         )
 
-    def _encode_images(self, images: np.ndarray) -> torch.Tensor:
-        if self.var is None:
-            return torch.zeros(len(images), 0)
-        return self.views_var.encode_image(torch.from_numpy(images))
+    def _replay_views_var(self) -> VAR | None:
+        """A VAR adapted to the household's room (`learning.var.room_adaptation`) sees the replay
+        environments, which practise in the base model's rooms, by the base's batch-norm statistics: as it
+        will see the training room once they are given back (None: every environment is seen alike)."""
+        if self.var is None or self.base_statistics is None or not self.config.replay_envs:
+            return None
+        return with_statistics(self.var, self.base_statistics).with_batch_norms_folded()
 
-    def _see(self, images: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+    def _see(self, images: np.ndarray, envs: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
         """f_I of rendered views (the observation's and the reward's part) and the policy's view of them,
-        before its episode's view changes. A policy that sees through this very VAR gets the hidden layer of
-        the same pass."""
+        before its episode's view changes; `envs[i]` is the environment that rendered `images[i]`. A policy
+        that sees through this very VAR gets the hidden layer of the same pass."""
+        replayed = self.replay_env_mask[envs]
+        if self.replay_views_var is None or not replayed.any():
+            return self._see_by(self.views_var, images)
+        if replayed.all():
+            return self._see_by(self.replay_views_var, images)
+        own = self._see_by(self.views_var, images[~replayed])
+        replay = self._see_by(self.replay_views_var, images[replayed])
+        return _interleaved(own[0], replay[0], replayed), _interleaved(own[1], replay[1], replayed)
+
+    def _see_by(
+        self, views_var: "VAR | VarOnDevice | None", images: np.ndarray
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        pixels = torch.from_numpy(images)
         if self.policy_sees_var:
-            return self.views_var.encode_image_and_hidden(torch.from_numpy(images))
-        return self._encode_images(images), self.policy.view_of(torch.from_numpy(images))
+            return views_var.encode_image_and_hidden(pixels)
+        embedded = torch.zeros(len(images), 0) if views_var is None else views_var.encode_image(pixels)
+        return embedded, self.policy.view_of(pixels)
 
     def _send_target_weights(self) -> None:
         weights = self.curriculum.next_weights(self.stats)
@@ -421,7 +446,7 @@ class PPOTrainer:
         self.view_changes.draw(np.arange(E), self.rng)
         self.policy_sees_var = self._policy_sees_this_var()  # after a resume: the restored policy's view
         with torch.inference_mode():
-            self.next_var, views = self._see(obs["image"])
+            self.next_var, views = self._see(obs["image"], np.arange(E))
             self.next_policy_images = self.view_changes.apply(views, slice(None))
         self.next_state = torch.from_numpy(obs["state"]).float()
         self.next_start = torch.ones(E)
@@ -531,7 +556,8 @@ class PPOTrainer:
         # the policy's view of the same images (ended.images are the next observations where none ended)
         tick = time.perf_counter()
         embedded, viewed = self._see(
-            np.concatenate([ended.images, obs["image"][done_envs]]) if len(done_envs) else ended.images
+            np.concatenate([ended.images, obs["image"][done_envs]]) if len(done_envs) else ended.images,
+            group.start + np.concatenate([np.arange(n), done_envs]),
         )
         reward_embedding, reset_embedding = embedded[:n], embedded[n:]
         self.timings.var_s += time.perf_counter() - tick
@@ -750,3 +776,11 @@ class PPOTrainer:
     def load_checkpoint(self, path: Path | None = None) -> None:
         """Restore everything a run needs to continue exactly (call after `start`)."""
         restore_run(self, path or self.checkpoint_path)
+
+
+def _interleaved(own: torch.Tensor, replay: torch.Tensor, replayed: np.ndarray) -> torch.Tensor:
+    """Rows of `own` and `replay` back in the order of the views they came from."""
+    out = own.new_empty(len(replayed), *own.shape[1:])
+    out[torch.from_numpy(~replayed)] = own
+    out[torch.from_numpy(replayed)] = replay
+    return out

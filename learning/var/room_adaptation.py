@@ -7,8 +7,16 @@ random views of its room measure that room's: the weights stay as trained, only 
 `share` of the way (0.5 by default, chosen over both held-out rooms; bench/results/rooms.json,
 `room-adapted-0.5`, measures it on other episodes). The statistics the base had are kept with the adapted
 VAR, so a robot moved again adapts from them, not from the last room.
+
+Training an adapted model with replay of the training room (the household fine-tune) sees each view by the
+statistics of its own room: the household's views by the adapted ones, the replayed training-room views by
+the base's (`seeing_by`, `with_statistics`). The weights then learn to work under both, as each room will be
+seen: adapted in the household's room, with the base's statistics given back (share 0) in the training room.
 """
 
+import copy
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
@@ -17,7 +25,7 @@ import torch
 from torch import nn
 
 from core.rooms import MIN_ROOM_VIEWS
-from learning.var.model import ImageEncoder
+from learning.var.model import VAR, ImageEncoder
 
 BATCH = 100
 DEFAULT_SHARE = 0.5
@@ -95,3 +103,33 @@ def adapt_to_room(
         spread = before[key.replace("running_mean", "running_var")].add(1e-5).sqrt()
         shifts.append(round(float(((blended[key] - before[key]).abs() / spread).mean()), 4))
     return RoomAdaptation(len(images), share, shifts, before)
+
+
+def base_statistics(payload: dict[str, Any]) -> Statistics | None:
+    """The base's statistics kept in an adapted VAR checkpoint's payload (None: the VAR was never adapted)."""
+    return (payload.get(CHECKPOINT_KEY) or {}).get("statistics_before")
+
+
+@contextmanager
+def seeing_by(encoder: ImageEncoder, statistics: Statistics) -> Iterator[None]:
+    """Within the block the encoder's batch norms (in eval mode) normalise by `statistics`; its own come back
+    after. The buffers are rebound, not overwritten, so a graph built inside stays valid for backward."""
+    own = {key: encoder.get_buffer(key) for key in statistics}
+    try:
+        _rebind(encoder, statistics)
+        yield
+    finally:
+        _rebind(encoder, own)
+
+
+def with_statistics(var: VAR, statistics: Statistics) -> VAR:
+    """A copy of `var` whose image encoder normalises by `statistics`."""
+    copied = copy.deepcopy(var)
+    copied.image_encoder.load_state_dict(statistics, strict=False)
+    return copied
+
+
+def _rebind(encoder: ImageEncoder, statistics: Statistics) -> None:
+    for key, value in statistics.items():
+        module_name, _, buffer_name = key.rpartition(".")
+        setattr(encoder.get_submodule(module_name), buffer_name, value)

@@ -4,6 +4,7 @@ and a later VAR, and acts and is evaluated like any other policy."""
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from rl_helpers import IMAGE, tiny_config
@@ -15,6 +16,7 @@ from learning.rl.ppo import PPOConfig, PPOTrainer
 from learning.rl.rewards import ClipBank
 from learning.var.checkpoint import save_var
 from learning.var.model import VAR, VARConfig
+from learning.var.room_adaptation import CHECKPOINT_KEY, adapt_to_room, with_statistics
 
 pytestmark = [pytest.mark.slow, pytest.mark.speech]
 
@@ -22,6 +24,16 @@ pytestmark = [pytest.mark.slow, pytest.mark.speech]
 def var_file(folder: Path, seed: int) -> Path:
     torch.manual_seed(seed)
     return save_var(VAR(VARConfig(image_size=IMAGE)).eval(), folder / f"var-{seed}.pt")
+
+
+def adapted_var_file(folder: Path) -> Path:
+    """A VAR adapted to a dark room, keeping the base's statistics as `worker.room_adaptation` does."""
+    torch.manual_seed(0)
+    var = VAR(VARConfig(image_size=IMAGE)).eval()
+    room = np.random.default_rng(0).integers(0, 90, (64, IMAGE, IMAGE, 3), dtype=np.uint8)
+    adaptation = adapt_to_room(var.image_encoder, room, share=1.0)
+    record = {**adaptation.to_dict(), "statistics_before": adaptation.statistics_before}
+    return save_var(var, folder / "adapted.pt", **{CHECKPOINT_KEY: record})
 
 
 def started(
@@ -131,6 +143,37 @@ def test_told_to_follow_the_run_s_var_a_loaded_policy_sees_through_the_household
     for name, value in base.policy.state_dict().items():  # everything after the view is the base policy's
         if not name.startswith("var_view."):
             assert torch.equal(follows.policy.state_dict()[name], value), name
+
+
+def test_replay_environments_are_seen_through_an_adapted_var_by_the_base_statistics(
+    tmp_path: Path, goal_clips: ClipBank
+) -> None:
+    var_path = adapted_var_file(tmp_path)
+    config = tiny_config(
+        policy_view="var", num_envs=4, env_groups=2, room="unseen_room", replay_envs=1,
+        replay_room="randomised",
+    )  # fmt: skip
+    trainer = started(config, tmp_path / "run", var_path, goal_clips)
+    views = np.random.default_rng(1).integers(0, 256, (4, IMAGE, IMAGE, 3), dtype=np.uint8)
+    envs = np.array([3, 0, 3, 1])  # environment 3 is the replay one
+    try:
+        trainer.reset_envs()
+        trainer.update(trainer.collect_rollout()[0])
+        with torch.inference_mode():
+            embedded, hidden = trainer._see(views, envs)
+    finally:
+        trainer.close()
+    loaded = load_frozen_var(var_path)
+    base = with_statistics(loaded.model, loaded.base_statistics)
+    pixels = torch.from_numpy(views)
+    with torch.no_grad():
+        own_embedded, own_hidden = loaded.model.encode_image_and_hidden(pixels)
+        base_embedded, base_hidden = base.encode_image_and_hidden(pixels)
+    replayed = envs == 3
+    for seen, own, by_base in ((embedded, own_embedded, base_embedded), (hidden, own_hidden, base_hidden)):
+        torch.testing.assert_close(seen[replayed], by_base[replayed], atol=1e-4, rtol=1e-4)
+        torch.testing.assert_close(seen[~replayed], own[~replayed], atol=1e-4, rtol=1e-4)
+        assert not torch.allclose(own[replayed], by_base[replayed], atol=1e-3)
 
 
 def test_it_is_evaluated_like_any_policy(tmp_path: Path, goal_clips: ClipBank) -> None:

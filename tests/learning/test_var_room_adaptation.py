@@ -1,6 +1,9 @@
 """A VAR's image encoder adapted to a room from the room's own views (adaptive batch normalisation): the
 statistics move, by the share asked, and nothing else does; too few views, or views that are not images,
-are refused with what to do."""
+are refused with what to do. Views of the training room can still be seen by the base's statistics, and
+trained through."""
+
+import copy
 
 import numpy as np
 import pytest
@@ -8,7 +11,7 @@ import torch
 
 from core.rooms import MIN_ROOM_VIEWS
 from learning.var.model import VAR, VARConfig
-from learning.var.room_adaptation import adapt_to_room, batch_norm_statistics
+from learning.var.room_adaptation import adapt_to_room, batch_norm_statistics, seeing_by
 
 SIZE = 16
 
@@ -93,3 +96,27 @@ def test_too_few_views_or_views_that_are_not_images_are_refused_with_what_to_do(
     with pytest.raises(ValueError, match="share must be from 0 to 1"):
         adapt_to_room(encoder, _room(), share=1.5)
     assert all(torch.equal(before[k], v) for k, v in batch_norm_statistics(encoder).items()), "nothing moved"
+
+
+def test_training_room_views_are_seen_by_the_base_statistics_for_a_while_and_trained_through() -> None:
+    encoder = _encoder()
+    adaptation = adapt_to_room(encoder, _room(), share=0.5)
+    adapted = batch_norm_statistics(encoder)
+    base = copy.deepcopy(encoder)
+    base.load_state_dict(adaptation.statistics_before, strict=False)
+    views = torch.from_numpy(_room(views=4, seed=3))
+
+    with seeing_by(encoder, adaptation.statistics_before):
+        seen = encoder(views).square().sum()
+    seen.backward()  # after the room's statistics came back
+    expected = base(views).square().sum()
+    expected.backward()
+
+    torch.testing.assert_close(seen, expected)
+    for (name, parameter), (_, reference) in zip(
+        encoder.named_parameters(), base.named_parameters(), strict=True
+    ):
+        torch.testing.assert_close(parameter.grad, reference.grad, msg=name)
+    assert all(torch.equal(adapted[k], v) for k, v in batch_norm_statistics(encoder).items())
+    with torch.no_grad():
+        assert not torch.allclose(encoder(views), base(views)), "the room's statistics see otherwise"

@@ -135,6 +135,35 @@ def test_a_diverging_loss_stops_the_var_stage_with_the_step_it_happened_at(tmp_p
     assert torch.load(resumed.checkpoint, weights_only=True)["kind"] == "varbot-var"
 
 
+def test_an_adapted_vars_fine_tune_sees_replayed_training_room_views_by_the_base_statistics() -> None:
+    import torch
+
+    from learning.var.model import VAR, VARConfig
+    from learning.var.room_adaptation import adapt_to_room, with_statistics
+    from worker.var_stage import encode_views, keep_room_statistics
+
+    torch.manual_seed(0)
+    var = VAR(VARConfig(image_size=16))
+    rng = np.random.default_rng(0)
+    adaptation = adapt_to_room(var.image_encoder, rng.integers(0, 90, (64, 16, 16, 3), dtype=np.uint8), 1.0)
+    var.train()
+    keep_room_statistics(var)
+    base = with_statistics(var, adaptation.statistics_before).eval()
+    images = torch.from_numpy(rng.integers(0, 256, (4, 16, 16, 3), dtype=np.uint8))
+    replayed = np.array([True, False, True, False])
+
+    seen = encode_views(var, images, replayed, adaptation.statistics_before)
+
+    with torch.no_grad():
+        torch.testing.assert_close(seen[replayed], base.encode_image(images[replayed]))
+        torch.testing.assert_close(seen[~replayed], var.encode_image(images[~replayed]))
+        assert not torch.allclose(seen[replayed], var.encode_image(images[replayed]))
+    seen.sum().backward()
+    assert var.image_encoder.features[0][0].weight.grad is not None, "it trains through both"
+    unadapted = encode_views(var, images, replayed, None)
+    torch.testing.assert_close(unadapted, var.encode_image(images))
+
+
 def _score(
     accuracy: float | None, success: float | None, triplets: int = 50, episodes: int = 40
 ) -> ModelScore:
