@@ -285,6 +285,12 @@ class RunParams(BaseModel):
         description="the policy self-improvement's learning rate as a multiple of the base model's (a "
         "fine-tune of a household's own version keeps that version's rate)",
     )
+    finetune_from_unadapted: bool = Field(
+        default=True,
+        description="a robot whose model was adapted to its room (Adapt to this room) fine-tunes the version "
+        "the adaptation started from, whose batch norms then learn the room from the household's own views "
+        "(default); false: it fine-tunes the adapted version with the room's statistics kept",
+    )
     policy_view_follows_var: bool = Field(
         default=True,
         description="for a policy that sees through the VAR: during its self-improvement it sees through "

@@ -188,7 +188,7 @@ def arm_env_context(context: Any) -> Iterator[str | None]:
     from learning.rl.env_groups import in_process_env
     from learning.rl.ppo import read_policy_checkpoint
 
-    policy_config = read_policy_checkpoint(context.parent_policy)["config"]
+    policy_config = read_policy_checkpoint(context.start_policy)["config"]
     image_size, max_steps = int(policy_config["image_size"]), policy_config.get("max_episode_steps")
     with get_session_factory()() as session:
         _, settings = arm_settings(session, context.robot_id, context.household_id)

@@ -62,22 +62,24 @@ class RunContext:
     room: DomainShift | None
     robot_id: int
     household_id: int
-    parent_id: int
+    parent_id: int  # the active version when the run started: what the candidate is measured against
     parent_var: Path
     parent_policy: Path | None
+    start_var: Path  # what training starts from: the parent's, or the version its room adaptation came from
+    start_policy: Path | None
     parent_base_ranges: RoomRanges | None  # the rooms the parent's base model was trained over, if recorded
     data: HouseholdData
     candidate_id: int | None  # an evaluate run's newest candidate version
 
     def candidate_var(self) -> Path:
-        """The VAR this run made, or the parent's when it trains none."""
+        """The VAR this run made, or the one it started from when it trains none."""
         done = RunState(self.folder).completed.get("var_finetune")
-        return Path(done["checkpoint"]) if done else self.parent_var
+        return Path(done["checkpoint"]) if done else self.start_var
 
     def candidate_policy(self) -> Path | None:
-        """The policy this run made, or the parent's when it trains none."""
+        """The policy this run made, or the one it started from when it trains none."""
         done = RunState(self.folder).completed.get("policy_improve")
-        return Path(done["checkpoint"]) if done else self.parent_policy
+        return Path(done["checkpoint"]) if done else self.start_policy
 
 
 def prepare_context(
@@ -96,6 +98,12 @@ def prepare_context(
             state.save()
         parent = session.get_one(models.ModelVersion, state.data["parent_id"])
         parent_var = materialise(blobs, parent.var_key, folder / "parent" / "var.pt")
+        parent_policy = materialise_optional(blobs, parent.policy_key, folder / "parent" / "policy.pt")
+        start_var, start_policy = parent_var, parent_policy
+        start = training_start(session, parent, kind, params)
+        if start.id != parent.id:
+            start_var = materialise(blobs, str(start.var_key), folder / "start" / "var.pt")
+            start_policy = materialise_optional(blobs, start.policy_key, folder / "start" / "policy.pt")
         image_size = int(read_checkpoint(parent_var)["config"]["image_size"])
         needs = get_settings().min_triplets_for_training if kind in TRAINS_VAR else 2
         data = load_household(
@@ -113,11 +121,33 @@ def prepare_context(
             household_id=robot.household_id,
             parent_id=parent.id,
             parent_var=parent_var,
-            parent_policy=materialise_optional(blobs, parent.policy_key, folder / "parent" / "policy.pt"),
+            parent_policy=parent_policy,
+            start_var=start_var,
+            start_policy=start_policy,
             parent_base_ranges=recorded_ranges(parent.metrics),
             data=data,
             candidate_id=_newest_candidate(session, robot.id) if kind == models.RunKind.EVALUATE else None,
         )
+
+
+def training_start(
+    session: Session, parent: models.ModelVersion, kind: models.RunKind, params: dict[str, Any]
+) -> models.ModelVersion:
+    """The version a fine-tune starts from. For a robot adapted to its room (`worker.room_adaptation`), the
+    version the adaptation started from, unless the run says `finetune_from_unadapted: false`: trained from
+    there, the fine-tune's batch norms learn the room from the household's views and the replayed training
+    room together, and the training room kept its success, where a fine-tune of the adapted statistics lost
+    up to 9 points of it (README, *Adapting to a room from its own views*)."""
+    from backend.schemas import RunParams
+    from learning.var.room_adaptation import CHECKPOINT_KEY
+
+    wanted = params.get("finetune_from_unadapted", RunParams.model_fields["finetune_from_unadapted"].default)
+    if kind != models.RunKind.FINETUNE or not wanted:
+        return parent
+    start = parent
+    while adaptation := (start.metrics or {}).get(CHECKPOINT_KEY):  # an adaptation of an adaptation too
+        start = session.get_one(models.ModelVersion, adaptation["from_version"])
+    return start
 
 
 def recorded_ranges(metrics: dict[str, Any] | None) -> RoomRanges | None:

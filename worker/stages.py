@@ -35,14 +35,14 @@ def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
 
     params = context.params
     fraction = float(run_param(params, "replay_fraction"))
-    data, replayed = with_replay(context.data, context.parent_var, context.world, fraction, params["seed"])
+    data, replayed = with_replay(context.data, context.start_var, context.world, fraction, params["seed"])
 
     def on_epoch(fraction: float, record: dict[str, Any]) -> bool:
         return progress.update(fraction, {"var": record}, point=record)
 
     result = finetune_var(
         data,
-        context.parent_var,
+        context.start_var,
         context.folder / "var",
         epochs=params["var_epochs"],
         batch_size=params["var_batch_size"],
@@ -59,7 +59,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
     from worker.policy_stage import improve_policy, success_by_room
     from worker.real_arm import arm_env_context
 
-    if context.parent_policy is None:
+    if context.start_policy is None:
         raise ValueError(f"model version {context.parent_id} has no policy to improve")
 
     def on_update(fraction: float, point: dict[str, Any]) -> bool:
@@ -71,7 +71,7 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
     with arm_env_context(context) as on_arm, _live_rollouts(context, "policy_improve", on_arm) as live:
         result = improve_policy(
             context.data,
-            context.parent_policy,
+            context.start_policy,
             context.candidate_var(),
             context.params["policy_steps"],
             context.folder / "policy",

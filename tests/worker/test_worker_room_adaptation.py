@@ -1,7 +1,8 @@
 """A robot's model adapted to its room through the API, Redis and the robot worker: its newest camera views,
 with no labels, move the batch-norm statistics of its VAR (and of a policy's VAR view); the result is the
-active version, a rollback undoes it, and a fine-tune from it keeps the room's statistics. A robot with too
-few views is told how many more to capture."""
+active version and a rollback undoes it. A fine-tune starts from the version the adaptation came from and is
+measured against the adapted one; told `finetune_from_unadapted: false`, it fine-tunes the adapted version
+and keeps the room's statistics. A robot with too few views is told how many more to capture."""
 
 import io
 
@@ -17,14 +18,18 @@ def _adapt(household: Household, robot_id: int, **body: object) -> dict:
     return household.robot_task(robot_id, "models:adapt-to-room", "adaptations", body, "the adaptation")
 
 
-def _var_state(version: dict) -> dict[str, torch.Tensor]:
+def _var_payload(version: dict) -> dict:
     from backend import models
     from backend.db import get_session_factory
     from backend.deps import get_blob_store
 
     with get_session_factory()() as session:
         key = session.get_one(models.ModelVersion, version["id"]).var_key
-    return torch.load(io.BytesIO(get_blob_store().get(key)), weights_only=True)["state_dict"]
+    return torch.load(io.BytesIO(get_blob_store().get(key)), weights_only=True)
+
+
+def _var_state(version: dict) -> dict[str, torch.Tensor]:
+    return _var_payload(version)["state_dict"]
 
 
 def _split(state: dict[str, torch.Tensor]) -> tuple[dict, dict]:
@@ -34,7 +39,7 @@ def _split(state: dict[str, torch.Tensor]) -> tuple[dict, dict]:
     return statistics, weights
 
 
-def test_a_robot_adapts_to_its_room_from_its_views_and_a_fine_tune_keeps_the_rooms_statistics(
+def test_a_robot_adapts_to_its_room_from_its_views_and_fine_tunes_from_the_version_before(
     stack: Stack, household: Household, base_model, training_worker
 ) -> None:  # type: ignore[no-untyped-def]
     robot = household.new_robot("room-adapting-arm", views=20)
@@ -59,12 +64,26 @@ def test_a_robot_adapts_to_its_room_from_its_views_and_a_fine_tune_keeps_the_roo
     assert all(torch.equal(base_weights[k], weights[k]) for k in base_weights), "no weight changed"
     assert all(not torch.equal(base_statistics[k], statistics[k]) for k in base_statistics)
 
-    run = household.wait_run(household.start_run(robot, **TINY)["id"], 300)
+    run = household.start_run(robot, **TINY, finetune_from_unadapted=False)
+    run = household.wait_run(run["id"], 300)
     assert run["status"] == "succeeded", run["error"]
     candidate = next(v for v in household.versions(robot) if v["run_id"] == run["id"])
     tuned_statistics, tuned_weights = _split(_var_state(candidate))
     assert all(torch.equal(statistics[k], tuned_statistics[k]) for k in statistics), "the room's, kept"
     assert any(not torch.equal(weights[k], tuned_weights[k]) for k in weights), "while the weights learnt"
+    assert "room_adaptation" in _var_payload(candidate)
+    if candidate["status"] == "active":
+        household.client.post(f"/api/v1/robots/{robot}/models:rollback").raise_for_status()
+
+    run = household.wait_run(household.start_run(robot, **TINY)["id"], 300)
+    assert run["status"] == "succeeded", run["error"]
+    from_base = next(v for v in household.versions(robot) if v["run_id"] == run["id"])
+    assert from_base["parent_id"] == active["id"], "measured against the adapted version"
+    assert "room_adaptation" not in _var_payload(from_base), "trained from the version before adapting"
+    learnt_statistics, _ = _split(_var_state(from_base))
+    assert all(not torch.equal(statistics[k], learnt_statistics[k]) for k in statistics)
+    if from_base["status"] == "active":
+        household.client.post(f"/api/v1/robots/{robot}/models:rollback").raise_for_status()
 
     back = _adapt(household, robot, share=0.0)
     assert back["views"] == 0 and back["status"]["state"] == "done", back["status"]
@@ -74,8 +93,6 @@ def test_a_robot_adapts_to_its_room_from_its_views_and_a_fine_tune_keeps_the_roo
     assert all(torch.equal(base_statistics[k], restored_statistics[k]) for k in base_statistics)
     household.client.post(f"/api/v1/robots/{robot}/models:rollback").raise_for_status()
 
-    if candidate["status"] == "active":
-        household.client.post(f"/api/v1/robots/{robot}/models:rollback").raise_for_status()
     rolled = household.client.post(f"/api/v1/robots/{robot}/models:rollback")
     assert rolled.status_code == 200 and rolled.json()["id"] == base["id"], "a rollback undoes it"
 
