@@ -75,7 +75,8 @@ def test_a_robot_adapts_to_its_room_from_its_views_and_fine_tunes_from_the_versi
     if candidate["status"] == "active":
         household.client.post(f"/api/v1/robots/{robot}/models:rollback").raise_for_status()
 
-    run = household.wait_run(household.start_run(robot, **TINY)["id"], 300)
+    run = household.start_run(robot, **TINY, finetune_from_unadapted=True)
+    run = household.wait_run(run["id"], 300)
     assert run["status"] == "succeeded", run["error"]
     from_base = next(v for v in household.versions(robot) if v["run_id"] == run["id"])
     assert from_base["parent_id"] == active["id"], "measured against the adapted version"
