@@ -815,7 +815,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--adapt-views", type=int, default=0,
         help="first adapt the base model to this many random views of the room "
         "(POST …/models:adapt-to-room; the model it started from is scored too); a --check-room is adapted "
-        "to as well, but for the training room, where the base model's statistics are given back (share 0)",
+        "to as well, but for the training room, where an adapted model's base statistics are given back "
+        "(share 0)",
     )  # fmt: skip
     parser.add_argument("--adapt-share", type=float, default=0.5, help="--adapt-views: how far they move")
     parser.add_argument("--attempts", type=int, default=200, help="attempts / mixed: the most attempts asked")

@@ -23,9 +23,8 @@ from backend.services.triplets import household_answers
 from core.labels import SILENCE_CLIP, Verdict, derive_triplets
 
 SILENCE_ROW = -1  # the positive clip row of a "nothing I said" triplet
-REPLAYED_VIEW = (
-    -1
-)  # the snapshot id of a view of the training room replayed with the household's (worker.replay)
+# the snapshot id of a view of the training room replayed with the household's (worker.replay)
+REPLAYED_VIEW = -1
 UNKNOWN_INTENT = -1
 
 

@@ -8,10 +8,11 @@ random views of its room measure that room's: the weights stay as trained, only 
 `room-adapted-0.5`, measures it on other episodes). The statistics the base had are kept with the adapted
 VAR, so a robot moved again adapts from them, not from the last room.
 
-Training an adapted model with replay of the training room (the household fine-tune) sees each view by the
-statistics of its own room: the household's views by the adapted ones, the replayed training-room views by
-the base's (`seeing_by`, `with_statistics`). The weights then learn to work under both, as each room will be
-seen: adapted in the household's room, with the base's statistics given back (share 0) in the training room.
+A household fine-tune of the adapted model itself (run parameter `finetune_from_unadapted: false`; by default
+it trains the version before adapting) sees each view by the statistics of its own room: the household's
+views by the adapted ones, the replayed training-room views by the base's (`seeing_by`, `with_statistics`).
+The weights then learn under the statistics each room will be seen with: adapted in the household's room, the
+base's given back (share 0) in the training room.
 """
 
 import copy
