@@ -15,6 +15,7 @@ from backend import models
 from backend.blobs import BlobStore
 from backend.db import get_session_factory
 from backend.deps import get_blob_store
+from backend.schemas import RunParams
 from backend.services import model_versions
 from backend.settings import get_settings
 from core.paths import data_subdir
@@ -130,6 +131,12 @@ def prepare_context(
         )
 
 
+def run_param(params: dict[str, Any], name: str) -> Any:
+    """A run's parameter, or `RunParams`' default (the one place defaults live) for a run stored before the
+    parameter existed."""
+    return params.get(name, RunParams.model_fields[name].default)
+
+
 def training_start(
     session: Session, parent: models.ModelVersion, kind: models.RunKind, params: dict[str, Any]
 ) -> models.ModelVersion:
@@ -138,11 +145,9 @@ def training_start(
     there, the fine-tune's batch norms learn the room from the household's views and the replayed training
     room together, and the training room kept its success, where a fine-tune of the adapted statistics lost
     up to 9 points of it (README, *Adapting to a room from its own views*)."""
-    from backend.schemas import RunParams
     from learning.var.room_adaptation import CHECKPOINT_KEY
 
-    wanted = params.get("finetune_from_unadapted", RunParams.model_fields["finetune_from_unadapted"].default)
-    if kind != models.RunKind.FINETUNE or not wanted:
+    if kind != models.RunKind.FINETUNE or not run_param(params, "finetune_from_unadapted"):
         return parent
     start = parent
     while adaptation := (start.metrics or {}).get(CHECKPOINT_KEY):  # an adaptation of an adaptation too

@@ -13,19 +13,12 @@ from typing import Any
 from backend import models
 from backend.db import get_session_factory
 from backend.deps import get_blob_store
-from backend.schemas import RunParams
 from worker.evaluation import ModelScore, score_model
 from worker.progress import Cancelled, Progress
-from worker.run_context import RunContext, materialise, materialise_optional
+from worker.run_context import RunContext, materialise, materialise_optional, run_param
 from worker.var_stage import Diverged
 
 EVAL_NUM_ENVS = int(os.environ.get("VARBOT_EVAL_NUM_ENVS", 4))
-
-
-def run_param(params: dict[str, Any], name: str) -> Any:
-    """A run's parameter, or `RunParams`' default (the one place defaults live) for a run stored before the
-    parameter existed."""
-    return params.get(name, RunParams.model_fields[name].default)
 
 
 def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:

@@ -19,7 +19,7 @@ import torch
 from learning.var.checkpoint import load_var, read_checkpoint, save_var
 from learning.var.model import VAR
 from learning.var.room_adaptation import CHECKPOINT_KEY as ROOM_ADAPTATION
-from learning.var.room_adaptation import Statistics, base_statistics, seeing_by
+from learning.var.room_adaptation import Statistics, base_statistics, in_view_order, seeing_by
 from worker.household import REPLAYED_VIEW, SILENCE_ROW, HouseholdData
 
 
@@ -75,14 +75,10 @@ def encode_views(
     room) the `replayed` ones, views of the training room, are seen by them, the household's by the room's."""
     if replay_statistics is None or not replayed.any():
         return var.encode_image(images)
-    replayed_rows = torch.from_numpy(np.flatnonzero(replayed))
-    own_rows = torch.from_numpy(np.flatnonzero(~replayed))
-    embedded = torch.empty(len(images), var.config.embedding_dim)
     with seeing_by(var.image_encoder, replay_statistics):
-        embedded = embedded.index_put((replayed_rows,), var.encode_image(images[replayed_rows]))
-    if len(own_rows):
-        embedded = embedded.index_put((own_rows,), var.encode_image(images[own_rows]))
-    return embedded
+        replay = var.encode_image(images[torch.from_numpy(replayed)])
+    own = var.encode_image(images[torch.from_numpy(~replayed)])
+    return in_view_order(own, replay, replayed)
 
 
 def finetune_var(
@@ -122,7 +118,7 @@ def finetune_var(
     started = time.perf_counter()
     while state["epoch"] < epochs:
         var.train()
-        if ROOM_ADAPTATION in init_payload:
+        if replay_statistics is not None:  # an adapted VAR
             keep_room_statistics(var)
         order = np.random.default_rng([seed, 21, state["epoch"]]).permutation(len(train))
         losses = []

@@ -61,7 +61,7 @@ from learning.rl.watch import (
     Watcher,
 )
 from learning.var.model import VAR
-from learning.var.room_adaptation import with_statistics
+from learning.var.room_adaptation import in_view_order, with_statistics
 
 
 @dataclass
@@ -410,14 +410,16 @@ class PPOTrainer:
         """f_I of rendered views (the observation's and the reward's part) and the policy's view of them,
         before its episode's view changes; `envs[i]` is the environment that rendered `images[i]`. A policy
         that sees through this very VAR gets the hidden layer of the same pass."""
+        if self.replay_views_var is None:
+            return self._see_by(self.views_var, images)
         replayed = self.replay_env_mask[envs]
-        if self.replay_views_var is None or not replayed.any():
+        if not replayed.any():
             return self._see_by(self.views_var, images)
         if replayed.all():
             return self._see_by(self.replay_views_var, images)
         own = self._see_by(self.views_var, images[~replayed])
         replay = self._see_by(self.replay_views_var, images[replayed])
-        return _interleaved(own[0], replay[0], replayed), _interleaved(own[1], replay[1], replayed)
+        return in_view_order(own[0], replay[0], replayed), in_view_order(own[1], replay[1], replayed)
 
     def _see_by(
         self, views_var: "VAR | VarOnDevice | None", images: np.ndarray
@@ -776,11 +778,3 @@ class PPOTrainer:
     def load_checkpoint(self, path: Path | None = None) -> None:
         """Restore everything a run needs to continue exactly (call after `start`)."""
         restore_run(self, path or self.checkpoint_path)
-
-
-def _interleaved(own: torch.Tensor, replay: torch.Tensor, replayed: np.ndarray) -> torch.Tensor:
-    """Rows of `own` and `replay` back in the order of the views they came from."""
-    out = own.new_empty(len(replayed), *own.shape[1:])
-    out[torch.from_numpy(~replayed)] = own
-    out[torch.from_numpy(replayed)] = replay
-    return out

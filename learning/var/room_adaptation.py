@@ -130,6 +130,15 @@ def with_statistics(var: VAR, statistics: Statistics) -> VAR:
     return copied
 
 
+def in_view_order(own: torch.Tensor, replay: torch.Tensor, replayed: np.ndarray) -> torch.Tensor:
+    """Rows of `own` (the household's views) and `replay` (the replayed ones, where `replayed`) back in the
+    order of the views they came from; gradients flow through both."""
+    out = own.new_empty(len(replayed), *own.shape[1:])
+    out[torch.from_numpy(~replayed)] = own
+    out[torch.from_numpy(replayed)] = replay
+    return out
+
+
 def _rebind(encoder: ImageEncoder, statistics: Statistics) -> None:
     for key, value in statistics.items():
         module_name, _, buffer_name = key.rpartition(".")

@@ -9,8 +9,7 @@ from core.rooms import ROOM_PRESETS, DomainShift, RoomRanges, room_setting, worl
 from learning.rl.ppo import PPOConfig
 from worker.base_models import SHIPPED_DIR, BaseModel
 from worker.policy_stage import improvement_config, own_room_success
-from worker.run_context import recorded_ranges
-from worker.stages import run_param
+from worker.run_context import recorded_ranges, run_param
 
 
 def test_a_robot_in_a_held_out_room_improves_its_policy_in_that_room_not_in_the_base_models_rooms() -> None:
