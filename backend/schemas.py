@@ -291,6 +291,15 @@ class RunParams(BaseModel):
         "the adaptation started from, whose batch norms then learn the room from the household's own views "
         "(default); false: it fine-tunes the adapted version with the room's statistics kept",
     )
+    policy_selection_episodes: int = Field(
+        default=0,
+        ge=0,
+        le=400,
+        description="validation episodes per room on which the policy self-improvement's checkpoints (every "
+        "25 updates, and the policy it started from) are scored in the robot's room and the simulator's "
+        "training room; the best in the robot's room that kept the training room becomes the candidate "
+        "(0: the last update's policy, unscored)",
+    )
     policy_view_follows_var: bool = Field(
         default=True,
         description="for a policy that sees through the VAR: during its self-improvement it sees through "

@@ -774,11 +774,15 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
 def policy_training(run: dict) -> dict:
     """How the fine-tune's policy fared while it trained: its recent success at the end, over all its
     environments and apart in the household's room and in the base model's rooms it replayed; and in the
-    household's room, the mean over each quarter of its updates (did it climb?)."""
+    household's room, the mean over each quarter of its updates (did it climb?); and which of its
+    checkpoints became the candidate, with each one's validation scores (`worker.policy_selection`)."""
     stage = run["metrics"].get("stages", {}).get("policy_improve", {})
     curve = run["metrics"].get("curves", {}).get("policy_improve", [])
     return {
-        **{key: stage.get(key) for key in ("env_steps", "recent_success", "recent_success_by_room")},
+        **{
+            key: stage.get(key)
+            for key in ("env_steps", "recent_success", "recent_success_by_room", "selection")
+        },
         "own_room_success_by_quarter": mean_by_quarter([point.get("own_room_success") for point in curve]),
     }
 
@@ -936,6 +940,8 @@ def print_result(result: dict, out: Path) -> None:
         "",
         " → ".join(_pct(value) for value in training["own_room_success_by_quarter"]),
     )
+    selection = training.get("selection")
+    table.add_row("policy chosen among its checkpoints", "", _selection(selection))
     for stage, seconds in (result["run"]["stages_s"] or {}).items():
         table.add_row(f"wall time: {stage}", "", f"{seconds:.0f} s")
     console.print(table)
@@ -943,6 +949,18 @@ def print_result(result: dict, out: Path) -> None:
     gate = result["run"]["gate"] or {}
     console.print(f"run {result['run']['status']}; gate: {gate.get('summary') or result['run']['error']}")
     console.print(f"written to {out}")
+
+
+def _selection(selection: dict | str | None) -> str:
+    """Each checkpoint's validation success (household's room / training room), the chosen one marked."""
+    if not isinstance(selection, dict):
+        return selection or "n/a"
+    chosen = selection["chosen"]["update"]
+    return "; ".join(
+        f"{'*' if score['update'] == chosen else ''}{score['update']}: {_pct(score['own_room'])} / "
+        f"{_pct(score['training_room'])}"
+        for score in selection["scores"]
+    )
 
 
 def _pct(value: float | None) -> str:

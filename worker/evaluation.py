@@ -10,13 +10,18 @@ import math
 from dataclasses import dataclass, field
 from enum import StrEnum
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from core.rooms import DomainShift
 from worker.household import HouseholdData
 from worker.var_stage import triplet_accuracy
+
+if TYPE_CHECKING:
+    from learning.rl.evaluate import EvalResult
+    from learning.rl.rewards import ClipBank
+    from learning.var.model import VAR
 
 
 @dataclass
@@ -72,34 +77,53 @@ def score_model(
     elif goals is None:
         score.sim_note = note
     else:
-        from learning.rl.evaluate import evaluate, median_miss_by_intent
-        from learning.rl.ppo import load_policy
+        from learning.rl.evaluate import median_miss_by_intent
 
-        policy, payload = load_policy(policy_path)
-        config = payload["config"]
         goals.embed(var)
-        result = evaluate(
-            policy,
-            var,
-            goals,
-            world,
-            var.config.image_size,
-            split="household",
-            episodes_per_intent=episodes_per_intent,
-            seed=seed,
-            num_envs=min(num_envs, len(set(data.clip_intent.tolist())) * episodes_per_intent),
-            success_rule=config.get("success_rule"),
-            max_steps=config.get("max_episode_steps"),
-            domain=room,
-            progress=False,
-            intents=sorted(set(data.clip_intent.tolist())),
-        )
+        intents = sorted(set(data.clip_intent.tolist()))
+        result = simulate(policy_path, var, goals, world, episodes_per_intent, room, seed, num_envs, intents)
         score.sim_success = float(result.success_rate)
         score.sim_episodes = len(result.episodes)
         score.sim_success_by_intent = [None if math.isnan(x) else float(x) for x in result.success_by_intent]
         score.sim_final_views = result.final_view_by_intent
         score.sim_missed_by_m = median_miss_by_intent(result.episodes, len(result.final_view_by_intent))
     return score
+
+
+def simulate(
+    policy_path: Path,
+    var: "VAR",
+    goals: "ClipBank",
+    world: str,
+    episodes_per_intent: int,
+    room: DomainShift | None,
+    seed: int,
+    num_envs: int,
+    intents: list[int],
+) -> "EvalResult":
+    """The evaluation protocol's episodes (`learning.rl.evaluate`) of the policy at `policy_path`, seeing
+    through `var`, with `goals` (embedded by `var`) naming `intents`, in `room` (None: the training room)."""
+    from learning.rl.evaluate import evaluate
+    from learning.rl.ppo import load_policy
+
+    policy, payload = load_policy(policy_path)
+    config = payload["config"]
+    return evaluate(
+        policy,
+        var,
+        goals,
+        world,
+        var.config.image_size,
+        split="household",
+        episodes_per_intent=episodes_per_intent,
+        seed=seed,
+        num_envs=min(num_envs, len(intents) * episodes_per_intent),
+        success_rule=config.get("success_rule"),
+        max_steps=config.get("max_episode_steps"),
+        domain=room,
+        progress=False,
+        intents=intents,
+    )
 
 
 class Verdict(StrEnum):

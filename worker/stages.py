@@ -48,18 +48,20 @@ def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
 
 
 def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
-    """In the robot's simulated world, or on the arm itself for a real arm (`worker.real_arm`)."""
+    """In the robot's simulated world, or on the arm itself for a real arm (`worker.real_arm`); in
+    simulation the candidate is then chosen among the run's checkpoints (`worker.policy_selection`)."""
     from worker.policy_stage import improve_policy, success_by_room
     from worker.real_arm import arm_env_context
 
     if context.start_policy is None:
         raise ValueError(f"model version {context.parent_id} has no policy to improve")
+    ppo_share = 1.0 - _selection_share(context.params)
 
     def on_update(fraction: float, point: dict[str, Any]) -> bool:
         for key, value in point.items():
             if isinstance(value, float) and not math.isfinite(value):
                 raise Diverged(f"{key} became {value} at PPO update {point['update']}")
-        return progress.update(fraction, {"policy": point}, point=point)
+        return progress.update(fraction * ppo_share, {"policy": point}, point=point)
 
     with arm_env_context(context) as on_arm, _live_rollouts(context, "policy_improve", on_arm) as live:
         result = improve_policy(
@@ -78,8 +80,9 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
             bool(run_param(context.params, "policy_view_follows_var")),
             float(run_param(context.params, "policy_learning_rate_scale")),
         )
+    chosen, selection = _choose_policy(context, progress, result.checkpoint, ppo_share, on_arm is not None)
     compact = context.folder / "policy" / "final.pt"
-    _compact_policy(result.checkpoint, compact)
+    _compact_policy(chosen, compact)
     return {
         "checkpoint": str(compact),
         "env_steps": result.env_steps,
@@ -87,7 +90,44 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
         "recent_success": result.recent_success,
         "recent_success_by_room": success_by_room(result.summary),
         "time_shares": result.summary.get("time_shares"),
+        "selection": selection,
     }
+
+
+def _selection_share(params: dict[str, Any]) -> float:
+    """The part of the policy stage's time that choosing among its checkpoints takes (the budget's costs)."""
+    from backend.schemas import RunParams
+    from backend.services.runs import SECONDS_PER_POLICY_STEP, SECONDS_PER_TEST_EPISODE, selection_episodes
+
+    episodes = selection_episodes(RunParams(**params))
+    choosing = episodes * SECONDS_PER_TEST_EPISODE / 2
+    return choosing / (choosing + params["policy_steps"] * SECONDS_PER_POLICY_STEP) if episodes else 0.0
+
+
+def _choose_policy(
+    context: RunContext, progress: Progress, last: Path, ppo_share: float, on_arm: bool
+) -> tuple[Path, dict[str, Any] | str]:
+    """The checkpoint that becomes the candidate's policy, and the selection's record (or why there was
+    none): `worker.policy_selection` in simulation when the run asks for validation episodes."""
+    from worker.policy_selection import PolicyScore, select_policy
+
+    episodes = int(run_param(context.params, "policy_selection_episodes"))
+    if not episodes:
+        return last, "the last update's policy was kept: policy_selection_episodes is 0"
+    if on_arm:
+        return last, "the last update's policy was kept: a real arm has no validation episodes to spare"
+
+    def on_scored(fraction: float, score: PolicyScore) -> bool:
+        done = ppo_share + (1 - ppo_share) * fraction
+        return progress.update(done, {"policy_selection": asdict(score)})
+
+    selection = select_policy(
+        context.data, context.folder / "policy", context.start_policy, context.candidate_var(),
+        context.world, context.room, context.params["seed"], episodes, EVAL_NUM_ENVS, on_scored,
+    )  # fmt: skip
+    if isinstance(selection, str):
+        return last, selection
+    return Path(selection.chosen.checkpoint), selection.to_dict()
 
 
 def evaluate(context: RunContext, progress: Progress) -> dict[str, Any]:

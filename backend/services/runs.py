@@ -1,5 +1,6 @@
 """Training runs: parameters from presets, enqueued by Celery task name, cancelled through a flag."""
 
+import math
 import uuid
 from datetime import UTC, datetime
 from typing import Any
@@ -42,6 +43,7 @@ PRESETS: dict[str, dict[str, Any]] = {
         eval_episodes=200,
         held_out_fraction=0.2,
         seed=0,
+        policy_selection_episodes=40,
     ),
 }
 # What a fine-tune's parts cost on this machine (2 CPU cores, 4,034 household triplets from about 760
@@ -58,6 +60,8 @@ MEASURED_TRIPLETS = 4034  # that run's household triplets
 MEASURED_REPLAY_FRACTION = 0.25  # that run's replay: an epoch's cost grows with its replayed triplets
 SECONDS_PER_POLICY_STEP = 67.96 / 20_000
 SECONDS_PER_TEST_EPISODE = 61.96 / 100
+# the shipped bases' PPO (8 environments x 100 steps an update) keeps a numbered checkpoint every 25 updates
+STEPS_PER_NUMBERED_CHECKPOINT = 8 * 100 * 25
 BUDGET_MEASURED_BY = "bench/results/household_4000_triplets.json"
 NEEDS_TRIPLETS = (models.RunKind.FINETUNE, models.RunKind.VAR_FINETUNE)
 UNFINISHED = (models.RunStatus.QUEUED, models.RunStatus.RUNNING)
@@ -78,13 +82,23 @@ def seconds_per_var_epoch(replay_fraction: float, triplets: int = MEASURED_TRIPL
     return SECONDS_PER_VAR_EPOCH * triplets / (1 - replay_fraction) / measured_training_triplets
 
 
+def selection_episodes(params: RunParams) -> int:
+    """The validation episodes of choosing among the policy's checkpoints (`worker.policy_selection`): the
+    start, every numbered checkpoint and the last one, each in the robot's room and the training room."""
+    if not params.policy_selection_episodes:
+        return 0
+    policies = 1 + math.ceil(params.policy_steps / STEPS_PER_NUMBERED_CHECKPOINT)
+    return policies * 2 * params.policy_selection_episodes
+
+
 def minutes_here(params: RunParams, triplets: int = MEASURED_TRIPLETS) -> float:
     """About how long a fine-tune with `params` takes on this machine with the household's `triplets`: VAR
-    epochs, policy steps and test episodes at the costs measured above."""
+    epochs, policy steps, validation and test episodes at the costs measured above."""
     seconds = (
         params.var_epochs * seconds_per_var_epoch(params.replay_fraction, triplets)
         + params.policy_steps * SECONDS_PER_POLICY_STEP
         + params.eval_episodes * SECONDS_PER_TEST_EPISODE
+        + selection_episodes(params) * SECONDS_PER_TEST_EPISODE / 2  # one model's, not two models'
     )
     return round(seconds / 60, 1)
 
