@@ -13,6 +13,7 @@ wins, a later one on a tie. Where the household's room is the training room, one
 """
 
 import re
+import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -41,6 +42,7 @@ class Selection:
     episodes_per_room: int
     reason: str
     excluded_updates: list[int] = field(default_factory=list)
+    wall_s: float | None = None  # the validation episodes' time, start-up included
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -103,6 +105,7 @@ def select_policy(
         result = simulate(policy, var, goals, world, per_intent, in_room, validation_seed, num_envs, intents)
         return float(result.success_rate)
 
+    started = time.perf_counter()
     candidates = policies_to_compare(run_dir, start_policy)
     scores: list[PolicyScore] = []
     for index, (update, saved) in enumerate(candidates):
@@ -112,7 +115,9 @@ def select_policy(
         scores.append(PolicyScore(update, str(policy), own, training))
         if on_scored is not None and on_scored((index + 1) / len(candidates), scores[-1]):
             raise Cancelled("cancel requested while choosing among the policy's checkpoints")
-    return choose(scores, per_intent * len(intents))
+    selection = choose(scores, per_intent * len(intents))
+    selection.wall_s = round(time.perf_counter() - started, 1)
+    return selection
 
 
 def choose(scores: list[PolicyScore], episodes: int) -> Selection:

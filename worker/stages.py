@@ -97,10 +97,14 @@ def policy_improve(context: RunContext, progress: Progress) -> dict[str, Any]:
 def _selection_share(params: dict[str, Any]) -> float:
     """The part of the policy stage's time that choosing among its checkpoints takes (the budget's costs)."""
     from backend.schemas import RunParams
-    from backend.services.runs import SECONDS_PER_POLICY_STEP, SECONDS_PER_TEST_EPISODE, selection_episodes
+    from backend.services.runs import (
+        SECONDS_PER_POLICY_STEP,
+        SECONDS_PER_VALIDATION_EPISODE,
+        selection_episodes,
+    )
 
     episodes = selection_episodes(RunParams(**params))
-    choosing = episodes * SECONDS_PER_TEST_EPISODE / 2
+    choosing = episodes * SECONDS_PER_VALIDATION_EPISODE
     return choosing / (choosing + params["policy_steps"] * SECONDS_PER_POLICY_STEP) if episodes else 0.0
 
 

@@ -99,6 +99,7 @@ def test_a_fine_tune_in_a_held_out_room_chooses_its_policy_on_validation_episode
         for rate in (score["own_room"], score["training_room"]):
             assert 0 <= rate <= 1 and math.isclose(rate * 4, round(rate * 4)), "4 episodes a room"
     assert selection["chosen"] in selection["scores"] and selection["reason"].startswith("kept the policy")
+    assert 0 < selection["wall_s"] < run["timings"]["stages_s"]["policy_improve"]
     assert run["metrics"]["stages"]["policy_improve"]["checkpoint"].endswith("final.pt")
 
 
