@@ -8,7 +8,7 @@ import pytest
 from conftest import TINY, Household, wait_until
 
 from backend.services.runs import minutes_here, resolve_params, selection_episodes
-from worker.policy_selection import PolicyScore, choose
+from worker.policy_selection import PolicyScore, choose, policies_to_compare
 
 
 def _scores(*rows: tuple[float, float | None]) -> list[PolicyScore]:
@@ -44,6 +44,30 @@ def test_a_tie_goes_to_the_later_policy_and_the_start_wins_when_nothing_beat_it(
 def test_a_robot_in_the_training_room_is_scored_once_and_nothing_is_ruled_out_for_forgetting() -> None:
     selection = choose(_scores((0.6, None), (0.5, None), (0.7, None)), episodes=40)
     assert selection.chosen.update == 50 and not selection.excluded_updates
+
+
+def test_the_start_every_numbered_checkpoint_and_a_final_one_between_them_compete(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    import torch
+
+    from learning.rl.checkpoints import CHECKPOINT_KIND, FORMAT_VERSION
+
+    def checkpoint(name: str, update: int) -> None:
+        payload = {"kind": CHECKPOINT_KIND, "format_version": FORMAT_VERSION, "update_index": update}
+        torch.save(payload, tmp_path / name)
+
+    for update in (25, 50):
+        checkpoint(f"checkpoint_{update:06d}.pt", update)
+    checkpoint("checkpoint.pt", 60)  # 60 updates: the last one is not a multiple of 25
+    (tmp_path / "checkpoint_000025.pt.tmp").write_bytes(b"")  # a write cut short is no candidate
+    start = tmp_path / "start.pt"
+    assert policies_to_compare(tmp_path, start) == [
+        (0, start),
+        (25, tmp_path / "checkpoint_000025.pt"),
+        (50, tmp_path / "checkpoint_000050.pt"),
+        (60, tmp_path / "checkpoint.pt"),
+    ]
+    checkpoint("checkpoint.pt", 50)  # it ended on a numbered one: that file stands for it
+    assert [update for update, _ in policies_to_compare(tmp_path, start)] == [0, 25, 50]
 
 
 def test_the_thorough_presets_budget_counts_its_validation_episodes() -> None:
