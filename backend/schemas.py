@@ -271,6 +271,14 @@ class RunParams(BaseModel):
         description="share of the VAR fine-tune's training triplets replayed from the simulated training "
         "room with the base corpus's clips, so that it keeps what it knew (0: none)",
     )
+    var_keep_view: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=100.0,
+        description="weight of a loss that keeps the hidden layer of the VAR fine-tune's replayed "
+        "training-room views where the VAR it started from had it (what a policy that sees through the VAR "
+        "reads; 0: off)",
+    )
     policy_replay_share: float = Field(
         default=0.25,
         ge=0.0,

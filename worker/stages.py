@@ -42,6 +42,7 @@ def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
         learning_rate=params["var_learning_rate"],
         seed=params["seed"],
         on_epoch=on_epoch,
+        keep_view=float(run_param(params, "var_keep_view")),
     )
     done = {k: str(v) if isinstance(v, Path) else v for k, v in asdict(result).items()}
     return {**done, "train_triplets": len(context.data.train_triplets), "replay_triplets": replayed}

@@ -19,7 +19,13 @@ import torch
 from learning.var.checkpoint import load_var, read_checkpoint, save_var
 from learning.var.model import VAR
 from learning.var.room_adaptation import CHECKPOINT_KEY as ROOM_ADAPTATION
-from learning.var.room_adaptation import Statistics, base_statistics, in_view_order, seeing_by
+from learning.var.room_adaptation import (
+    Statistics,
+    base_statistics,
+    in_view_order,
+    seeing_by,
+    with_statistics,
+)
 from worker.household import REPLAYED_VIEW, SILENCE_ROW, HouseholdData
 
 
@@ -70,15 +76,36 @@ def keep_room_statistics(var: VAR) -> None:
 
 def encode_views(
     var: VAR, images: torch.Tensor, replayed: np.ndarray, replay_statistics: Statistics | None
-) -> torch.Tensor:
-    """f_I of a batch of views. With `replay_statistics` (the base's, for a VAR adapted to the household's
-    room) the `replayed` ones, views of the training room, are seen by them, the household's by the room's."""
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """f_I of a batch of views and the hidden layer it came from (what a policy that sees through the VAR
+    reads). With `replay_statistics` (the base's, for a VAR adapted to the household's room) the `replayed`
+    ones, views of the training room, are seen by them, the household's by the room's."""
     if replay_statistics is None or not replayed.any():
-        return var.encode_image(images)
+        return var.encode_image_and_hidden(images)
     with seeing_by(var.image_encoder, replay_statistics):
-        replay = var.encode_image(images[torch.from_numpy(replayed)])
-    own = var.encode_image(images[torch.from_numpy(~replayed)])
-    return in_view_order(own, replay, replayed)
+        replay = var.encode_image_and_hidden(images[torch.from_numpy(replayed)])
+    own = var.encode_image_and_hidden(images[torch.from_numpy(~replayed)])
+    return tuple(in_view_order(mine, theirs, replayed) for mine, theirs in zip(own, replay, strict=True))  # type: ignore[return-value]
+
+
+class ViewAnchor:
+    """Keeps the hidden layer of the replayed training-room views where the VAR the fine-tune started from had
+    it. The triplet loss constrains only the sphere, and a policy that sees through the VAR reads the hidden
+    layer: left free, it moved far enough in one household's fine-tune that the base policy, seeing through
+    it, fell from 86 to 67 % in the training room before PPO began (README, *Choosing the policy*). The
+    distance is the mean squared difference over the start's own spread of each unit (as
+    `learning.var.room_invariance` measures its student)."""
+
+    def __init__(self, start: VAR, weight: float) -> None:
+        self.start = start.eval()
+        self.weight = weight
+
+    def loss(self, images: torch.Tensor, hidden: torch.Tensor, replayed: np.ndarray) -> torch.Tensor:
+        rows = torch.from_numpy(replayed)
+        with torch.no_grad():
+            target = self.start.image_encoder.hidden(images[rows])
+        spread = target.var(dim=0, unbiased=False).mean().clamp_min(1e-6)
+        return self.weight * (hidden[rows] - target).pow(2).mean() / spread
 
 
 def finetune_var(
@@ -91,8 +118,10 @@ def finetune_var(
     seed: int,
     on_epoch: Callable[[float, dict[str, Any]], bool],
     margin: float = 1.0,
+    keep_view: float = 0.0,
 ) -> VarFinetuneResult:
-    """`on_epoch(fraction, record)` after every epoch; returning True stops (cancel) after the checkpoint."""
+    """`on_epoch(fraction, record)` after every epoch; returning True stops (cancel) after the checkpoint.
+    `keep_view` > 0 adds `ViewAnchor`'s loss, with that weight, on the replayed views."""
     from learning.augment import augment_embeddings, augment_features
     from learning.var.image_augment import augment_images
     from learning.var.loss import triplet_loss
@@ -102,6 +131,12 @@ def finetune_var(
     init_payload = read_checkpoint(init_checkpoint)
     var = load_var(init_checkpoint)
     replay_statistics = base_statistics(init_payload)
+    view_anchor = None
+    if keep_view > 0:  # the start as it sees the training room: an adapted one by the base's statistics
+        start = load_var(init_checkpoint)
+        view_anchor = ViewAnchor(
+            start if replay_statistics is None else with_statistics(start, replay_statistics), keep_view
+        )
     optimizer = torch.optim.Adam(var.parameters(), lr=learning_rate)
     generator = torch.Generator().manual_seed(seed)
     state = {"epoch": 0, "step": 0, "best": None, "seconds": 0.0}
@@ -133,8 +168,10 @@ def finetune_var(
             )
             positive, negative = var.encode_sound(sounds).split(len(rows))
             replayed = data.snapshot_ids[rows[:, 0]] == REPLAYED_VIEW
-            anchor = encode_views(var, images, replayed, replay_statistics)
+            anchor, hidden = encode_views(var, images, replayed, replay_statistics)
             loss = triplet_loss(anchor, positive, negative, margin)
+            if view_anchor is not None and replayed.any():
+                loss = loss + view_anchor.loss(images, hidden, replayed)
             if not torch.isfinite(loss):
                 raise Diverged(f"the triplet loss became {loss.item()} at step {state['step'] + 1}")
             optimizer.zero_grad(set_to_none=True)

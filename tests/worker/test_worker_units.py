@@ -152,16 +152,50 @@ def test_an_adapted_vars_fine_tune_sees_replayed_training_room_views_by_the_base
     images = torch.from_numpy(rng.integers(0, 256, (4, 16, 16, 3), dtype=np.uint8))
     replayed = np.array([True, False, True, False])
 
-    seen = encode_views(var, images, replayed, adaptation.statistics_before)
+    seen, hidden = encode_views(var, images, replayed, adaptation.statistics_before)
 
     with torch.no_grad():
+        torch.testing.assert_close(hidden[replayed], base.image_encoder.hidden(images[replayed]))
         torch.testing.assert_close(seen[replayed], base.encode_image(images[replayed]))
         torch.testing.assert_close(seen[~replayed], var.encode_image(images[~replayed]))
         assert not torch.allclose(seen[replayed], var.encode_image(images[replayed]))
     seen.sum().backward()
     assert var.image_encoder.features[0][0].weight.grad is not None, "it trains through both"
-    unadapted = encode_views(var, images, replayed, None)
+    unadapted, _ = encode_views(var, images, replayed, None)
     torch.testing.assert_close(unadapted, var.encode_image(images))
+
+
+def test_the_view_anchor_pulls_only_the_replayed_views_hidden_layer_back_to_the_starts() -> None:
+    import copy
+
+    import torch
+
+    from learning.var.model import VAR, VARConfig
+    from worker.var_stage import ViewAnchor
+
+    torch.manual_seed(0)
+    start = VAR(VARConfig(image_size=16)).eval()
+    moved = copy.deepcopy(start)
+    with torch.no_grad():
+        for parameter in moved.image_encoder.parameters():
+            parameter.add_(0.05 * torch.randn_like(parameter))
+    images = torch.from_numpy(np.random.default_rng(1).integers(0, 256, (6, 16, 16, 3), dtype=np.uint8))
+    replayed = np.array([True, False, True, False, True, False])
+    anchor = ViewAnchor(start, weight=2.0)
+
+    with torch.no_grad():
+        assert float(anchor.loss(images, start.image_encoder.hidden(images), replayed)) < 1e-9
+        household_moved = start.image_encoder.hidden(images)
+        household_moved[~replayed] += 5.0
+        assert float(anchor.loss(images, household_moved, replayed)) < 1e-9, (
+            "the household's views move freely"
+        )
+    hidden = moved.image_encoder.hidden(images)
+    loss = anchor.loss(images, hidden, replayed)
+    assert float(loss) > 1e-3
+    loss.backward()
+    assert moved.image_encoder.features[0][0].weight.grad.abs().sum() > 0
+    assert all(parameter.grad is None for parameter in start.parameters()), "the start stays as it was"
 
 
 def _score(
