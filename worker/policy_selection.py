@@ -1,11 +1,11 @@
 """Which policy of a self-improvement becomes the candidate: not always the last update's.
 
-A household's PPO run sometimes ends on an update that undid what it knew: the training room fell from
-85.0 to 65.0 % after one household's fine-tune while its own room rose (bench/results/
-household_adapted_tuned_from_base_unseen_room_seed1.json). The trainer keeps a numbered checkpoint every
-`checkpoint_every` updates; this module scores each of them, and the policy the run started from (seeing
-through the run's VAR, as PPO's first update saw it), on validation episodes of their own: a seed the
-evaluate stage never uses, so the gate's figures stay an honest test of the one chosen.
+A household's PPO run need not end on its best update: the household's room or the training room can be
+better some updates before the last. The trainer keeps a numbered checkpoint every `checkpoint_every`
+updates, and one of the policy it started from (update 0, seeing through the run's VAR as the first update
+did); this module scores each of them on validation episodes of their own, with a seed the evaluate stage
+never uses, so the gate's figures stay an honest test of the one chosen. It cannot undo what the VAR
+fine-tune did before PPO began: the start carries that too (README, *Choosing the policy*).
 
 The rule: a policy that fell in the simulator's training room by more than the noise allows (`worker.
 evaluation.compare`, against the start) is out; of the rest, the most successful in the household's room
@@ -48,11 +48,12 @@ class Selection:
         return asdict(self)
 
 
-def policies_to_compare(run_dir: Path, start_policy: Path) -> list[tuple[int, Path]]:
-    """(update, checkpoint) of the start, every numbered checkpoint and the final one, in update order."""
+def policies_to_compare(run_dir: Path) -> list[tuple[int, Path]]:
+    """(update, checkpoint) of every numbered checkpoint (from the start's, update 0, as PPO's first update
+    saw it) and the final one, in update order."""
     from learning.rl.checkpoints import read_policy_checkpoint
 
-    found = {0: start_policy}
+    found = {}
     for path in sorted(run_dir.glob("checkpoint_*.pt")):
         match = NUMBERED_CHECKPOINT.fullmatch(path.name)
         if match:
@@ -62,23 +63,9 @@ def policies_to_compare(run_dir: Path, start_policy: Path) -> list[tuple[int, Pa
     return sorted(found.items())
 
 
-def start_as_trained(start_policy: Path, run_dir: Path, var_path: Path) -> Path:
-    """The start policy as the run's first update saw it: a policy that follows the run's VAR sees through
-    the run's image encoder, not the base copy it was saved with."""
-    from learning.rl.checkpoints import policy_with_view, read_policy_checkpoint
-    from learning.var.checkpoint import load_var
-
-    config = read_policy_checkpoint(run_dir / "checkpoint.pt")["config"]
-    if not (config.get("policy_view") == "var" and config.get("policy_view_follows_var")):
-        return start_policy
-    encoder = load_var(var_path).image_encoder.state_dict()
-    return policy_with_view(start_policy, encoder, run_dir / "start_seeing_run_var.pt")
-
-
 def select_policy(
     data: HouseholdData,
     run_dir: Path,
-    start_policy: Path,
     var_path: Path,
     world: str,
     room: DomainShift | None,
@@ -106,10 +93,9 @@ def select_policy(
         return float(result.success_rate)
 
     started = time.perf_counter()
-    candidates = policies_to_compare(run_dir, start_policy)
+    candidates = policies_to_compare(run_dir)
     scores: list[PolicyScore] = []
-    for index, (update, saved) in enumerate(candidates):
-        policy = start_as_trained(start_policy, run_dir, var_path) if update == 0 else saved
+    for index, (update, policy) in enumerate(candidates):
         own = success_in(policy, room)
         training = None if room is None else success_in(policy, None)
         scores.append(PolicyScore(update, str(policy), own, training))

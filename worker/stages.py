@@ -127,8 +127,8 @@ def _choose_policy(
         return progress.update(done, {"policy_selection": asdict(score)})
 
     selection = select_policy(
-        context.data, context.folder / "policy", context.start_policy, context.candidate_var(),
-        context.world, context.room, context.params["seed"], episodes, EVAL_NUM_ENVS, on_scored,
+        context.data, context.folder / "policy", context.candidate_var(), context.world, context.room,
+        context.params["seed"], episodes, EVAL_NUM_ENVS, on_scored,
     )  # fmt: skip
     if isinstance(selection, str):
         return last, selection

@@ -85,7 +85,7 @@ def encode_views(
     with seeing_by(var.image_encoder, replay_statistics):
         replay = var.encode_image_and_hidden(images[torch.from_numpy(replayed)])
     own = var.encode_image_and_hidden(images[torch.from_numpy(~replayed)])
-    return tuple(in_view_order(mine, theirs, replayed) for mine, theirs in zip(own, replay, strict=True))  # type: ignore[return-value]
+    return in_view_order(own[0], replay[0], replayed), in_view_order(own[1], replay[1], replayed)
 
 
 class ViewAnchor:
@@ -93,8 +93,8 @@ class ViewAnchor:
     it. The triplet loss constrains only the sphere, and a policy that sees through the VAR reads the hidden
     layer: left free, it moved far enough in one household's fine-tune that the base policy, seeing through
     it, fell from 86 to 67 % in the training room before PPO began (README, *Choosing the policy*). The
-    distance is the mean squared difference over the start's own spread of each unit (as
-    `learning.var.room_invariance` measures its student)."""
+    distance is the mean squared difference over the start's variance of a unit across the batch (as
+    `learning.var.room_invariance` measures its student against the target's spread)."""
 
     def __init__(self, start: VAR, weight: float) -> None:
         self.start = start.eval()

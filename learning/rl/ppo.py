@@ -689,6 +689,8 @@ class PPOTrainer:
         if self.policy is None:
             self.start()
         self.watch(on_rollout_step)
+        if self.update_index == 0:  # the policy as it starts, as the others are kept (checkpoint_000000.pt)
+            self.save_checkpoint()
         metrics_path = self.run_dir / "metrics.jsonl"
         bar = tqdm(
             total=c.num_updates * c.batch_size, initial=self.global_step, unit="step", disable=not progress

@@ -1,8 +1,8 @@
 """Build and run a training run from names: a world, a sound corpus, a VAR checkpoint, a method.
 
 Used by `varbot rl train`, `varbot rl improve`, `bench/reproduce.py` and (later) the Celery worker. A run
-lives in one directory: `config.json`, `checkpoint.pt` (+ periodic `checkpoint_NNNNNN.pt`), `metrics.jsonl`,
-`curves.png`.
+lives in one directory: `config.json`, `checkpoint.pt` (+ periodic `checkpoint_NNNNNN.pt`, the policy it
+started from as `checkpoint_000000.pt`), `metrics.jsonl`, `curves.png`.
 """
 
 import json

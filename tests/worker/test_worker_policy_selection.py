@@ -59,15 +59,16 @@ def test_the_start_every_numbered_checkpoint_and_a_final_one_between_them_compet
         checkpoint(f"checkpoint_{update:06d}.pt", update)
     checkpoint("checkpoint.pt", 60)  # 60 updates: the last one is not a multiple of 25
     (tmp_path / "checkpoint_000025.pt.tmp").write_bytes(b"")  # a write cut short is no candidate
-    start = tmp_path / "start.pt"
-    assert policies_to_compare(tmp_path, start) == [
+    start = tmp_path / "checkpoint_000000.pt"  # the trainer keeps the policy it starts from
+    checkpoint(start.name, 0)
+    assert policies_to_compare(tmp_path) == [
         (0, start),
         (25, tmp_path / "checkpoint_000025.pt"),
         (50, tmp_path / "checkpoint_000050.pt"),
         (60, tmp_path / "checkpoint.pt"),
     ]
     checkpoint("checkpoint.pt", 50)  # it ended on a numbered one: that file stands for it
-    assert [update for update, _ in policies_to_compare(tmp_path, start)] == [0, 25, 50]
+    assert [update for update, _ in policies_to_compare(tmp_path)] == [0, 25, 50]
 
 
 def test_the_thorough_presets_budget_counts_its_validation_episodes() -> None:
@@ -103,6 +104,13 @@ def _answer_views_until_every_command_was_seen(household: Household, robot: int,
     raise AssertionError(f"{len(answered)} random views never showed every block")
 
 
+def _succeeded(household: Household, robot: int, **params: object) -> dict:
+    """A tiny fine-tune of `robot`, run to its end: it must succeed."""
+    run = household.wait_run(household.start_run(robot, **TINY, **params)["id"], timeout=300)
+    assert run["status"] == "succeeded", run["error"]
+    return run
+
+
 @pytest.mark.slow
 @pytest.mark.speech
 def test_a_fine_tune_in_a_held_out_room_chooses_its_policy_on_validation_episodes_in_both_rooms(
@@ -111,10 +119,7 @@ def test_a_fine_tune_in_a_held_out_room_chooses_its_policy_on_validation_episode
     robot = household.new_robot("choosing-arm")
     _answer_views_until_every_command_was_seen(household, robot)
     household.client.patch(f"/api/v1/robots/{robot}", json={"settings": {"domain": "unseen_room"}})
-    run = household.wait_run(
-        household.start_run(robot, **TINY, policy_selection_episodes=4)["id"], timeout=300
-    )
-    assert run["status"] == "succeeded", run["error"]
+    run = _succeeded(household, robot, policy_selection_episodes=4)
     selection = run["metrics"]["stages"]["policy_improve"]["selection"]
     # the tiny base keeps a checkpoint at every update: the start and both updates of 48 steps compete
     assert isinstance(selection, dict), selection
@@ -132,9 +137,7 @@ def test_a_fine_tune_in_a_held_out_room_chooses_its_policy_on_validation_episode
 def test_a_fine_tune_without_validation_episodes_keeps_the_last_update_and_says_so(
     household: Household, training_worker
 ) -> None:  # type: ignore[no-untyped-def]
-    robot = household.new_robot("last-update-arm")
-    run = household.wait_run(household.start_run(robot, **TINY)["id"], timeout=300)
-    assert run["status"] == "succeeded", run["error"]
+    run = _succeeded(household, household.new_robot("last-update-arm"))
     assert run["metrics"]["stages"]["policy_improve"]["selection"] == (
         "the last update's policy was kept: policy_selection_episodes is 0"
     )
