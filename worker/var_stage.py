@@ -100,12 +100,16 @@ class ViewAnchor:
         self.start = start.eval()
         self.weight = weight
 
-    def loss(self, images: torch.Tensor, hidden: torch.Tensor, replayed: np.ndarray) -> torch.Tensor:
+    def drift(self, images: torch.Tensor, hidden: torch.Tensor, replayed: np.ndarray) -> torch.Tensor:
+        """How far the replayed views' hidden layer moved from the start's, in units of its spread there."""
         rows = torch.from_numpy(replayed)
         with torch.no_grad():
             target = self.start.image_encoder.hidden(images[rows])
         spread = target.var(dim=0, unbiased=False).mean().clamp_min(1e-6)
-        return self.weight * (hidden[rows] - target).pow(2).mean() / spread
+        return (hidden[rows] - target).pow(2).mean() / spread
+
+    def loss(self, images: torch.Tensor, hidden: torch.Tensor, replayed: np.ndarray) -> torch.Tensor:
+        return self.weight * self.drift(images, hidden, replayed)
 
 
 def finetune_var(
@@ -156,7 +160,7 @@ def finetune_var(
         if replay_statistics is not None:  # an adapted VAR
             keep_room_statistics(var)
         order = np.random.default_rng([seed, 21, state["epoch"]]).permutation(len(train))
-        losses = []
+        losses, drifts = [], []
         for start in range(0, len(train), batch_size):
             rows = train[order[start : start + batch_size]]
             if len(rows) < 2:  # batch norm cannot train on a single image
@@ -171,7 +175,9 @@ def finetune_var(
             anchor, hidden = encode_views(var, images, replayed, replay_statistics)
             loss = triplet_loss(anchor, positive, negative, margin)
             if view_anchor is not None and replayed.any():
-                loss = loss + view_anchor.loss(images, hidden, replayed)
+                drift = view_anchor.drift(images, hidden, replayed)
+                loss = loss + view_anchor.weight * drift
+                drifts.append(float(drift.detach()))
             if not torch.isfinite(loss):
                 raise Diverged(f"the triplet loss became {loss.item()} at step {state['step'] + 1}")
             optimizer.zero_grad(set_to_none=True)
@@ -192,6 +198,8 @@ def finetune_var(
             "step": state["step"],
             "loss": float(np.mean(losses)),
             "held_out_accuracy": held_out,
+            # with the view anchor on: how far the replayed views' hidden layer moved (ViewAnchor.drift)
+            "view_drift": float(np.mean(drifts)) if drifts else None,
         }
         if on_epoch(state["epoch"] / epochs, record):
             from worker.progress import Cancelled

@@ -212,3 +212,9 @@ def test_polling_finds_runs_changed_since_the_last_look(admin, robot, no_triplet
     chunks = asyncio.run(collect())
     stages = [e["stage"] for chunk in chunks for e in _events(chunk)]
     assert stages == ["queued", "evaluating"]
+
+
+def test_the_thorough_preset_keeps_the_hidden_layer_its_policy_reads(member) -> None:
+    presets = member.client.get("/api/v1/runs/presets").json()
+    assert presets["thorough"]["var_keep_view"] > 0, "its fine-tune anchors the replayed views"
+    assert presets["quick"]["var_keep_view"] == presets["standard"]["var_keep_view"] == 0

@@ -99,10 +99,13 @@ def test_attempts_become_snapshots_answers_become_labels_and_a_fine_tune_with_re
 
     build_corpora(["wordset"], profile="small", progress=False, log=lambda _: None)
     _version_with_corpus(robot["id"], (base_model / "var.pt").read_bytes(), "wordset")
-    run = household.wait_run(household.start_run(robot["id"], **{**TINY, "replay_fraction": 0.25})["id"], 300)
+    params = {**TINY, "replay_fraction": 0.25, "var_keep_view": 1.0}  # the anchor, as the thorough preset
+    run = household.wait_run(household.start_run(robot["id"], **params)["id"], 300)
     assert run["status"] == "succeeded", run["error"]
     var_stage = run["metrics"]["stages"]["var_finetune"]
     assert var_stage["replay_triplets"] == round(var_stage["train_triplets"] * 0.25 / 0.75) > 0
+    drifts = [point["view_drift"] for point in run["metrics"]["curves"]["var_finetune"]]
+    assert drifts and all(d is not None and d >= 0 for d in drifts), "the anchor measured the views' drift"
     gate = run["metrics"]["gate"]
     assert gate["verdict"] in VERDICTS and gate["summary"] and gate["min_items_for_a_claim"] == 50
     version = next(v for v in household.versions(robot["id"]) if v["run_id"] == run["id"])
