@@ -108,9 +108,6 @@ class ViewAnchor:
         spread = target.var(dim=0, unbiased=False).mean().clamp_min(1e-6)
         return (hidden[rows] - target).pow(2).mean() / spread
 
-    def loss(self, images: torch.Tensor, hidden: torch.Tensor, replayed: np.ndarray) -> torch.Tensor:
-        return self.weight * self.drift(images, hidden, replayed)
-
 
 def finetune_var(
     data: HouseholdData,
