@@ -122,7 +122,7 @@ def finetune_var(
     keep_view: float = 0.0,
 ) -> VarFinetuneResult:
     """`on_epoch(fraction, record)` after every epoch; returning True stops (cancel) after the checkpoint.
-    `keep_view` > 0 adds `ViewAnchor`'s loss, with that weight, on the replayed views."""
+    `keep_view` > 0 adds `keep_view` × `ViewAnchor.drift` of the replayed views to the loss."""
     from learning.augment import augment_embeddings, augment_features
     from learning.var.image_augment import augment_images
     from learning.var.loss import triplet_loss
