@@ -1,0 +1,78 @@
+"""bench/block_edges.py: its scan puts the gripper where it says, so the ray's verdict traces the real block,
+and each try's end falls in the class its last view and offset say."""
+
+import block_edges as bench
+import numpy as np
+import pytest
+
+from learning.audio import feature_shape
+from learning.rl.ppo import load_policy
+from learning.rl.rewards import ClipBank
+from learning.var.checkpoint import load_var
+from sim.blocks import BLOCK_SIZE_M
+from worker.base_models import find_base
+
+BLOCK = BLOCK_SIZE_M[:2]
+
+
+@pytest.fixture(scope="module")
+def models() -> bench.Models:
+    """The shipped Kuka base with made-up clips: the VAR's calls mean nothing, the ray and the tries do."""
+    base = find_base("kuka")
+    var = load_var(base.var_path)
+    policy, _ = load_policy(base.policy_path)
+    rng = np.random.default_rng(0)
+    frames, values = feature_shape("speech", var.front_end)
+    bank = ClipBank(rng.normal(size=(8, frames, values)).astype(np.float32), np.arange(8) % 4)
+    return bench.models_from(var, policy, bank, temperature=0.25)
+
+
+def test_an_end_is_success_another_block_past_an_end_beside_or_elsewhere() -> None:
+    assert bench.classify_end(np.array([0.07, 0.0]), heard=2, intent=2, block_m=BLOCK) == "success"
+    assert bench.classify_end(np.array([0.0, 0.1]), heard=3, intent=2, block_m=BLOCK) == "another block"
+    assert bench.classify_end(np.array([0.07, 0.005]), -1, 2, BLOCK) == "past an end of the target"
+    assert bench.classify_end(np.array([-0.07, -0.01]), -1, 2, BLOCK) == "past an end of the target"
+    assert bench.classify_end(np.array([0.01, 0.045]), -1, 2, BLOCK) == "beside the target"
+    assert bench.classify_end(np.array([0.2, 0.05]), -1, 2, BLOCK) == "elsewhere"
+
+
+def test_the_extent_spans_the_offsets_where_at_least_half_the_views_are_on_it() -> None:
+    rows = [
+        {"offset_cm": -2, "ray": 0.2}, {"offset_cm": -1, "ray": 0.5}, {"offset_cm": 0, "ray": 1.0},
+        {"offset_cm": 1, "ray": 0.9}, {"offset_cm": 2, "ray": None},
+    ]  # fmt: skip
+    assert bench.extent_cm(rows, "ray") == [-1, 1]
+    assert bench.extent_cm([{"offset_cm": 0, "ray": 0.0}], "ray") is None
+
+
+def test_the_scan_traces_the_target_block_where_the_ray_finds_it(models: bench.Models) -> None:
+    env = bench.make_world("kuka", "training", 96)
+    try:
+        profile = bench.scan(env, models, layouts=1, reach_cm=9, seed=3)
+    finally:
+        env.close()
+    across = {row["offset_cm"]: row for row in profile["y"]}
+    along = {row["offset_cm"]: row for row in profile["x"]}
+    assert across[0]["views"] == 4 and across[0]["ray_on_target"] == 1.0
+    assert across[-5]["ray_on_target"] == 0.0 and across[5]["ray_on_target"] == 0.0  # between the blocks
+    assert along[4]["ray_on_target"] == 1.0 and along[-4]["ray_on_target"] == 1.0  # the long side
+    assert all(
+        row["ray_on_target"] == 0.0 for row in profile["x"] if abs(row["offset_cm"]) >= 8 and row["views"]
+    )
+    assert all(0.0 <= row["reward_mean"] <= 1.0 for row in profile["x"] if row["views"])
+
+
+def test_each_try_ends_in_one_class_with_its_offset_from_the_target(models: bench.Models) -> None:
+    env = bench.make_world("kuka", "training", 96)
+    try:
+        tries = bench.play(env, models, per_intent=1, seed=5)
+    finally:
+        env.close()
+    assert sorted(t["intent"] for t in tries) == [0, 1, 2, 3]
+    for end in tries:
+        dx, dy = np.array(end["offset_cm"]) / 100
+        assert end["end"] in bench.END_CLASSES
+        if end["end"] == "success":
+            assert abs(dy) <= BLOCK[1] / 2 + 0.01 and abs(dx) <= BLOCK[0] / 2 + 0.01 and end["touched_target"]
+    summary = bench.summarise_tries(tries)
+    assert sum(summary["ends"].values()) == 4
