@@ -1,6 +1,6 @@
 """Simulated worlds (PyBullet, Gymnasium) and robot drivers. Importing `sim` registers the env ids."""
 
-from gymnasium.envs.registration import register, registry
+from gymnasium.envs.registration import register, registry, spec
 
 KUKA_BLOCKS = "varbot/KukaBlocks-v0"
 KINOVA_BLOCKS = "varbot/KinovaBlocks-v0"
@@ -24,3 +24,10 @@ def world_id(world: str) -> str:
         return WORLDS[world]
     except KeyError:
         raise ValueError(f"unknown world {world!r}: choose one of {', '.join(WORLDS)}") from None
+
+
+def world_class(world: str) -> type:
+    """The env class of a world, without making one: what a world can do is checked before rendering."""
+    from gymnasium.envs.registration import load_env_creator
+
+    return load_env_creator(spec(world_id(world)).entry_point)

@@ -374,8 +374,7 @@ def room_invariant_base(
     (`learning.var.room_invariance`), in its VAR and in its policy's frozen view alike, evaluated again in the
     rooms of its record with its seed and written to `out_root/<world>/` (the evaluation before is kept under
     `before_room_invariance`). `settings` are InvarianceConfig's (views, steps...)."""
-    from learning.rl.checkpoints import policy_with_view, read_policy_checkpoint
-    from learning.var.checkpoint import load_var, read_checkpoint, save_var
+    from learning.var.checkpoint import load_var
     from learning.var.room_invariance import (
         InvarianceConfig,
         check_world_renders_rooms,
@@ -385,32 +384,60 @@ def room_invariant_base(
 
     base = find_base(world)
     check_world_renders_rooms(world)
-    if read_policy_checkpoint(base.policy_path)["policy_config"].get("view_var") is None:
-        raise ValueError(
-            f"the {world} base's policy sees through its own CNN, not its VAR: give it one that sees through "
-            f"the VAR first (`varbot rl train --policy-view var`, then `varbot models replace-policy`)"
-        )
+    _require_policy_seeing_through_var(base)
     config = InvarianceConfig(world=world, **settings)
-    teacher_payload = read_checkpoint(base.var_path)
     teacher = load_var(base.var_path)
     pairs = render_pairs(config, teacher.config.image_size, data_dir() / "room_pairs" / world, progress)
     result = teach_room_invariance(teacher, pairs, config, progress)
-    extra = {
-        key: teacher_payload[key]
-        for key in ("manifest_hash", "sound_set", "world", "refit")
-        if key in teacher_payload
-    }
-    with _staged(out_root / world) as staging:
-        save_var(result.var, staging / "var.pt", **extra, room_invariance=result.report)
-        policy_with_view(base.policy_path, result.var.image_encoder.state_dict(), staging / "policy.pt")
+    return _write_with_new_view(
+        base, result.var, {"room_invariance": result.report}, out_root, eval_episodes_per_intent, progress,
+        lambda evaluation: _room_invariant_record(base, result.report, evaluation),
+    )  # fmt: skip
+
+
+VAR_PAYLOAD_KEPT = ("manifest_hash", "sound_set", "world", "refit", "room_invariance", "block_ends")
+
+
+def _require_policy_seeing_through_var(base: BaseModel) -> None:
+    """A new image encoder reaches a policy only through its VAR view, never a policy with its own CNN."""
+    from learning.rl.checkpoints import read_policy_checkpoint
+
+    if read_policy_checkpoint(base.policy_path)["policy_config"].get("view_var") is None:
+        raise ValueError(
+            f"the {base.world} base's policy sees through its own CNN, not its VAR: give it one that sees "
+            "through the VAR first (`varbot rl train --policy-view var`, then `varbot models "
+            "replace-policy`)"
+        )
+
+
+def _write_with_new_view(
+    base: BaseModel,
+    var: Any,
+    saved_with_var: dict[str, Any],
+    out_root: Path,
+    eval_episodes_per_intent: int | None,
+    progress: bool,
+    record_for: Callable[[dict], dict[str, Any]],
+) -> dict[str, Any]:
+    """`base` written to `out_root/<world>/` with `var` as its VAR (what the old one's file said of its
+    origin kept, `saved_with_var` added) and as its policy's view, its curves copied, evaluated again in the
+    rooms of its record with its seed; `record_for(evaluation)` is the new record, which is returned."""
+    from learning.rl.checkpoints import policy_with_view
+    from learning.var.checkpoint import read_checkpoint, save_var
+
+    old_payload = read_checkpoint(base.var_path)
+    origin = {key: old_payload[key] for key in VAR_PAYLOAD_KEPT if key in old_payload}
+    with _staged(out_root / base.world) as staging:
+        save_var(var, staging / "var.pt", **(origin | saved_with_var))
+        policy_with_view(base.policy_path, var.image_encoder.state_dict(), staging / "policy.pt")
         for name in ("policy_curves.png", "var_curves.png"):
             if (base.folder / name).is_file():
                 shutil.copy(base.folder / name, staging / name)
-        evaluation = evaluate_as_recorded(
-            staging, base.record.get("recipe", {}), eval_episodes_per_intent, progress
+        recipe = base.record.get("recipe", {})
+        _write_record(
+            staging, record_for(evaluate_as_recorded(staging, recipe, eval_episodes_per_intent, progress))
         )
-        _write_record(staging, _room_invariant_record(base, result.report, evaluation))
-    return json.loads((out_root / world / RECORD).read_text())
+    return json.loads((out_root / base.world / RECORD).read_text())
 
 
 def _room_invariant_record(base: BaseModel, report: dict[str, Any], evaluation: dict) -> dict[str, Any]:
@@ -425,6 +452,46 @@ def _room_invariant_record(base: BaseModel, report: dict[str, Any], evaluation: 
             "taught_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         },
         "before_room_invariance": {"evaluation": before.get("evaluation")},
+    }
+
+
+def block_ends_base(
+    world: str,
+    out_root: Path,
+    eval_episodes_per_intent: int | None = None,
+    progress: bool = True,
+    **settings: Any,
+) -> dict[str, Any]:
+    """A world's base model whose VAR was taught where its blocks end (`learning.var.block_ends`), in the
+    rooms it was trained over, with its policy seeing through the new image encoder; evaluated again in the
+    rooms of its record with its seed and written to `out_root/<world>/` (the evaluation before is kept under
+    `before_block_ends`). `settings` are BlockEndsConfig's (views, epochs...)."""
+    from learning.var.block_ends import BlockEndsConfig, check_world_has_blocks, teach_block_ends
+
+    check_world_has_blocks(world)
+    base = find_base(world)
+    before = base.record
+    config = BlockEndsConfig(world=world, sounds=before.get("sounds", "wordset"), **settings)
+    _require_policy_seeing_through_var(base)
+    rooms = world_room({"ranges": before["room_ranges"]}) if before.get("room_ranges") else None
+    result = teach_block_ends(base.var_path, config, rooms, data_dir() / "block_ends" / world, progress)
+    return _write_with_new_view(
+        base, result.var, {"block_ends": result.report}, out_root, eval_episodes_per_intent, progress,
+        lambda evaluation: _block_ends_record(base, result.report, evaluation),
+    )  # fmt: skip
+
+
+def _block_ends_record(base: BaseModel, report: dict[str, Any], evaluation: dict) -> dict[str, Any]:
+    before = base.record
+    return {
+        **{key: value for key, value in before.items() if key != "before_block_ends"},
+        "evaluation": evaluation,
+        "block_ends": {
+            **report,
+            "command": _command_line("block-ends"),
+            "taught_at": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        },
+        "before_block_ends": {"evaluation": before.get("evaluation")},
     }
 
 

@@ -1,12 +1,13 @@
 """`varbot worker --queue training|robot` and `varbot models …` (build-base, adopt, refit-front-end,
-replace-policy, show).
+replace-policy, room-invariance, block-ends, show).
 
 Heavy imports happen inside the commands."""
 
 import os
+from collections.abc import Callable
 from enum import StrEnum
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -270,23 +271,61 @@ def room_invariance(
     what they gave for the world's own look; evaluated again in every room of its record."""
     import json
 
-    from core.paths import data_dir
-    from worker.base_models import BaseModelMissing, room_invariant_base
+    from worker.base_models import room_invariant_base
 
-    try:
-        record = room_invariant_base(
-            world,
-            out or data_dir() / "base_models",
-            eval_episodes_per_intent,
-            views=views,
-            steps=steps,
-            seed=seed,
-            desaturate_share=desaturate_share,
-        )
-    except (ValueError, FileNotFoundError, BaseModelMissing) as refused:
-        raise typer.BadParameter(str(refused)) from None
+    record = _teach_base(
+        room_invariant_base, world, out, eval_episodes_per_intent,
+        views=views, steps=steps, seed=seed, desaturate_share=desaturate_share,
+    )  # fmt: skip
     agreement = {key: record["room_invariance"][key] for key in ("agreement_before", "agreement_after")}
     typer.echo(json.dumps({**agreement, "evaluation": record["evaluation"]}, indent=2))
+
+
+@models_app.command("block-ends")
+def block_ends(
+    world: Annotated[str, typer.Option(help="kuka or kinova (the worlds with blocks)")],
+    views: Annotated[int, typer.Option(min=1, help="views rendered around the blocks' ends")] = 12_000,
+    replay_views: Annotated[
+        int, typer.Option(min=1, help="random exploration views of the same rooms, replayed beside them")
+    ] = 12_000,
+    epochs: Annotated[int, typer.Option(min=1, help="the VAR fine-tune's epochs at most")] = 8,
+    seed: Annotated[int, typer.Option()] = 0,
+    eval_episodes_per_intent: Annotated[
+        int | None, typer.Option(min=1, help="default: the base model's own recipe's")
+    ] = None,
+    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+) -> None:
+    """Teach a world's base model where its blocks end: its VAR is fine-tuned on views with the gripper placed
+    around the blocks' ends in the rooms it was trained over, labelled by the simulator's ray, and its policy
+    sees through the new image encoder; evaluated again in every room of its record."""
+    import json
+
+    from worker.base_models import block_ends_base
+
+    record = _teach_base(
+        block_ends_base, world, out, eval_episodes_per_intent,
+        views=views, replay_views=replay_views, epochs=epochs, seed=seed,
+    )  # fmt: skip
+    taught = {key: record["block_ends"][key] for key in ("best_held_out_accuracy", "epochs", "seconds")}
+    typer.echo(json.dumps({**taught, "evaluation": record["evaluation"]}, indent=2))
+
+
+def _teach_base(
+    teach: Callable[..., dict[str, Any]],
+    world: str,
+    out: Path | None,
+    eval_episodes_per_intent: int | None,
+    **settings: Any,
+) -> dict[str, Any]:
+    """Runs one of `worker.base_models`' steps that rewrite a base model (default folder: the data
+    directory's `base_models`); a refusal is a usage error with its reason."""
+    from core.paths import data_dir
+    from worker.base_models import BaseModelMissing
+
+    try:
+        return teach(world, out or data_dir() / "base_models", eval_episodes_per_intent, **settings)
+    except (ValueError, FileNotFoundError, BaseModelMissing) as refused:
+        raise typer.BadParameter(str(refused)) from None
 
 
 @models_app.command("show")
@@ -308,6 +347,8 @@ def show() -> None:
                 front_end += f"; policy replaced {record['policy_replaced']['replaced_at']}"
             if "room_invariance" in record:
                 front_end += f"; taught room invariance {record['room_invariance']['taught_at']}"
+            if "block_ends" in record:
+                front_end += f"; taught block ends {record['block_ends']['taught_at']}"
             typer.echo(f"{world}: {base.folder} ({made}; trained in rooms: {rooms}; front end: {front_end})")
         except BaseModelMissing as missing:
             typer.echo(f"{world}: {missing}")

@@ -25,6 +25,7 @@ from core.paths import data_subdir
 NOTHING_HEARD = -1
 SILENCE_ID = -1  # in drawn sound ids: the all-zero features
 CHUNK = 256  # images a worker renders before writing them out and reporting progress
+VIEW_KINDS = ("random", "block_ends")  # sim.explore's random_views and block_end_views
 
 
 class DatasetError(ValueError):
@@ -90,20 +91,28 @@ def _worker_seeds(seed: int, workers: int) -> list[int]:
 
 
 def _collect_part(
-    path: str, world: str, start: int, count: int, seed: int, image_size: int, domain: Any, report: Any
+    path: str,
+    world: str,
+    start: int,
+    count: int,
+    seed: int,
+    image_size: int,
+    domain: Any,
+    views: str,
+    report: Any,
 ) -> None:
-    """Render `count` random views into rows [start, start+count) of the dataset files."""
+    """Render `count` views of the kind `views` into rows [start, start+count) of the dataset files."""
     try:
-        from sim.explore import random_views
+        from sim.explore import block_end_views, random_views
+
+        render = {"random": random_views, "block_ends": block_end_views}[views]
 
         images = np.load(Path(path) / "images.npy", mmap_mode="r+")
         heard = np.load(Path(path) / "heard.npy", mmap_mode="r+")
         buffer_images = np.empty((CHUNK, image_size, image_size, 3), dtype=np.uint8)
         buffer_heard = np.empty(CHUNK, dtype=np.int64)
         filled, written = 0, start
-        for image, heard_id, _state in random_views(
-            world, count, seed=seed, image_size=image_size, domain=domain
-        ):
+        for image, heard_id, _state in render(world, count, seed=seed, image_size=image_size, domain=domain):
             buffer_images[filled] = image
             buffer_heard[filled] = NOTHING_HEARD if heard_id is None else heard_id
             filled += 1
@@ -121,13 +130,15 @@ def _collect_part(
         images.flush()
         heard.flush()
         if written != start + count:
-            raise RuntimeError(f"random_views gave {written - start} views, {count} were asked for")
+            raise RuntimeError(f"{views} views: {written - start} rendered, {count} were asked for")
         report.put(("done", None))
     except BaseException:
         report.put(("error", traceback.format_exc()))
 
 
-def _describe(world: str, count: int, seed: int, image_size: int, domain: Any) -> dict[str, Any]:
+def _describe(
+    world: str, count: int, seed: int, image_size: int, domain: Any, views: str = "random"
+) -> dict[str, Any]:
     description = {
         "world": world,
         "count": count,
@@ -135,6 +146,8 @@ def _describe(world: str, count: int, seed: int, image_size: int, domain: Any) -
         "image_size": image_size,
         "domain": dataclasses.asdict(domain) if domain is not None else None,
     }
+    if views != "random":  # random datasets collected before there was a choice keep matching
+        description["views"] = views
     return json.loads(json.dumps(description))  # as it reads back from meta.json (tuples become lists)
 
 
@@ -148,8 +161,10 @@ def collect_dataset(
     workers: int = 2,
     overwrite: bool = False,
     progress: bool = True,
+    views: str = "random",
 ) -> ImageDataset:
-    """Let the robot move at random in `world` and store `count` views, each with what a person would say.
+    """Let the robot move at random in `world` and store `count` views, each with what a person would say;
+    `views="block_ends"`: with the gripper placed around a block's end instead (`sim.explore`, arm worlds).
 
     Work is split over `workers` spawned processes (each its own seed) writing straight into the memory-mapped
     files. An identical complete dataset is reused; a different one is only replaced with `overwrite`.
@@ -160,11 +175,14 @@ def collect_dataset(
         raise DatasetError(f"Unknown world '{world}'; choose one of {sorted(WORLDS)}.")
     if count <= 0:
         raise DatasetError(f"--triplets must be positive, got {count}.")
+    if views not in VIEW_KINDS:
+        raise DatasetError(f"views must be one of {', '.join(VIEW_KINDS)}, got {views!r}.")
     path = dataset_path(name)
-    wanted = _describe(world, count, seed, image_size, domain)
+    wanted = _describe(world, count, seed, image_size, domain, views)
     if (path / "meta.json").is_file():
         existing = json.loads((path / "meta.json").read_text())
-        if all(existing.get(key) == value for key, value in wanted.items()) and not overwrite:
+        same_kind = existing.get("views", "random") == views
+        if same_kind and all(existing.get(key) == value for key, value in wanted.items()) and not overwrite:
             return open_dataset(path)
         if not overwrite:
             raise DatasetError(
@@ -180,7 +198,8 @@ def collect_dataset(
     sizes = [count // workers + (1 if i < count % workers else 0) for i in range(workers)]
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
     started = time.perf_counter()
-    _run_workers(path, world, starts, sizes, _worker_seeds(seed, workers), image_size, domain, progress)
+    seeds = _worker_seeds(seed, workers)
+    _run_workers(path, world, starts, sizes, seeds, image_size, domain, views, progress)
     elapsed = time.perf_counter() - started
 
     heard = np.load(path / "heard.npy")
@@ -202,11 +221,12 @@ def _run_workers(
     seeds: list[int],
     image_size: int,
     domain: Any,
+    views: str,
     progress: bool,
 ) -> None:
     if len(sizes) == 1:  # no process to spawn: render here (small datasets, tests)
         report: Any = queue.SimpleQueue()
-        _collect_part(str(path), world, starts[0], sizes[0], seeds[0], image_size, domain, report)
+        _collect_part(str(path), world, starts[0], sizes[0], seeds[0], image_size, domain, views, report)
         _drain(report, [None], sum(sizes), progress, world)
         return
     context = multiprocessing.get_context("spawn")  # never fork a process that may hold torch threads
@@ -214,7 +234,7 @@ def _run_workers(
     processes = [
         context.Process(
             target=_collect_part,
-            args=(str(path), world, start, size, seed, image_size, domain, report),
+            args=(str(path), world, start, size, seed, image_size, domain, views, report),
             daemon=True,
         )
         for start, size, seed in zip(starts, sizes, seeds, strict=True)

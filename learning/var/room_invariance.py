@@ -67,13 +67,9 @@ class InvarianceResult:
 
 def check_world_renders_rooms(world: str) -> None:
     """Refuse a world whose env cannot render one scene in another room (`render_as`): the TurtleBot's."""
-    import gymnasium as gym
-    from gymnasium.envs.registration import load_env_creator
+    from sim import world_class
 
-    from sim import world_id
-
-    env_class = load_env_creator(gym.spec(world_id(world)).entry_point)
-    if not hasattr(env_class, "render_as"):
+    if not hasattr(world_class(world), "render_as"):
         raise ValueError(
             f"the {world} world cannot render a scene in another room (its env has no render_as): room "
             f"invariance is taught on the block worlds (kuka, kinova)"

@@ -197,6 +197,28 @@ def test_an_identical_collection_is_reused_and_a_different_one_refused(kuka_test
         collect_dataset("kuka", 300, "test-var-kuka-test", seed=2, image_size=SIZE, workers=1, progress=False)
 
 
+def test_views_around_the_blocks_ends_are_collected_alike_and_never_taken_for_random_ones(kuka_test_views):
+    """The same workers render them; about half show the gripper over a block (random ones: about one in
+    nine), and a collection under the same name and seed asking for random views is refused."""
+    ends = collect_dataset(
+        "kuka",
+        300,
+        "test-var-kuka-ends",
+        seed=1,
+        image_size=SIZE,
+        workers=2,
+        progress=False,
+        views="block_ends",
+    )
+    assert ends.meta["views"] == "block_ends" and "views" not in kuka_test_views.meta
+    over_a_block = (ends.heard >= 0).mean()
+    assert 0.3 < over_a_block < 0.75 and over_a_block > 2 * (kuka_test_views.heard >= 0).mean()
+    with pytest.raises(DatasetError, match="--overwrite"):
+        collect_dataset("kuka", 300, "test-var-kuka-ends", seed=1, image_size=SIZE, workers=1, progress=False)
+    with pytest.raises(DatasetError, match="views must be one of random, block_ends"):
+        collect_dataset("kuka", 10, "test-var-kuka-anywhere", image_size=SIZE, views="anywhere")
+
+
 def test_speed_copies_are_faster_and_slower_renderings_of_every_chosen_clip(wordset):
     train = wordset.subset("train")
     speaker = train.speaker[0]

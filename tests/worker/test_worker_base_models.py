@@ -266,6 +266,16 @@ def _tiny_base(out: Path) -> None:
     build_base(recipe, out, progress=False)
 
 
+def _tiny_base_seeing_through_var(out: Path, work: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """`_tiny_base` with a policy that sees through its VAR, written to `out/kuka` and found there."""
+    _tiny_base(work / "built")
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(work / "built"))
+    run = _tiny_policy_run(work / "run", work / "built" / "kuka" / "var.pt", 16, policy_view="var")
+    replace = ["models", "replace-policy", "--world", "kuka", "--run-dir", str(run)]
+    assert CliRunner().invoke(app, [*replace, "--out", str(out)]).exit_code == 0
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(out))
+
+
 def test_a_base_model_takes_a_policy_trained_on_its_var_and_keeps_the_old_policys_figures(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
@@ -350,12 +360,7 @@ def test_a_base_model_learns_to_see_any_room_of_its_ranges_as_its_training_room(
     from learning.rl.checkpoints import read_policy_checkpoint
     from learning.var.checkpoint import load_var
 
-    _tiny_base(tmp_path / "built")
-    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "built"))
-    run = _tiny_policy_run(tmp_path / "run", tmp_path / "built" / "kuka" / "var.pt", 16, policy_view="var")
-    replace = ["models", "replace-policy", "--world", "kuka", "--run-dir", str(run)]
-    assert CliRunner().invoke(app, [*replace, "--out", str(tmp_path / "viewing")]).exit_code == 0
-    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "viewing"))
+    _tiny_base_seeing_through_var(tmp_path / "viewing", tmp_path, monkeypatch)
     teach = ["models", "room-invariance", "--world", "kuka", "--views", "480", "--steps", "80"]
     result = CliRunner().invoke(app, [*teach, "--out", str(tmp_path / "new")])
     assert result.exit_code == 0, result.output
@@ -388,6 +393,73 @@ def test_a_base_model_learns_to_see_any_room_of_its_ranges_as_its_training_room(
     monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "new"))
     shown = CliRunner().invoke(app, ["models", "show"]).output
     assert f"taught room invariance {taught['taught_at']}" in shown
+
+
+def test_a_base_model_learns_where_its_blocks_end_in_its_var_and_its_policys_view_alike(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """`varbot models block-ends`: the VAR is fine-tuned on views around the blocks' ends (and random ones
+    replayed) in the rooms the base was trained over; the policy sees through the new image encoder and keeps
+    everything else; the evaluation before is kept, and `models show` says when it was taught."""
+    import torch
+
+    from learning.rl.checkpoints import read_policy_checkpoint
+    from learning.var.checkpoint import load_var
+
+    _tiny_base_seeing_through_var(tmp_path / "viewing", tmp_path, monkeypatch)
+    teach = [
+        "models",
+        "block-ends",
+        "--world",
+        "kuka",
+        "--views",
+        "96",
+        "--replay-views",
+        "96",
+        "--epochs",
+        "1",
+    ]
+    result = CliRunner().invoke(app, [*teach, "--out", str(tmp_path / "new")])
+    assert result.exit_code == 0, result.output
+
+    old, new = tmp_path / "viewing" / "kuka", tmp_path / "new" / "kuka"
+    record, before = (json.loads((folder / "base.json").read_text()) for folder in (new, old))
+    taught = record["block_ends"]
+    assert taught["config"]["views"] == 96 and taught["best_held_out_accuracy"] is not None
+    assert sum(taught["block_end_views_heard"].values()) == 96 and "-1" in taught["block_end_views_heard"]
+    assert record["before_block_ends"]["evaluation"] == before["evaluation"]
+    assert set(record["evaluation"]) == {"unseen_room"}
+    teacher, student = load_var(old / "var.pt"), load_var(new / "var.pt")
+    assert not torch.equal(
+        student.image_encoder.features[0][0].weight, teacher.image_encoder.features[0][0].weight
+    )
+    policy = read_policy_checkpoint(new / "policy.pt")["policy"]
+    old_policy = read_policy_checkpoint(old / "policy.pt")["policy"]
+    for name, weights in student.image_encoder.state_dict().items():
+        assert torch.equal(policy[f"var_view.encoder.{name}"], weights), "the policy sees through the new VAR"
+    for name, weights in old_policy.items():
+        if not name.startswith("var_view."):
+            assert torch.equal(policy[name], weights), name
+    monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "new"))
+    shown = CliRunner().invoke(app, ["models", "show"]).output
+    assert f"taught block ends {taught['taught_at']}" in shown
+
+
+@pytest.mark.parametrize(
+    ("world", "reason"), [("turtlebot", "has no blocks whose ends"), ("kinova", "sees through its own CNN")]
+)
+def test_block_ends_are_refused_where_they_cannot_work_before_anything_is_rendered(
+    world: str, reason: str, tmp_path: Path
+) -> None:
+    """The TurtleBot's arena has no blocks; the shipped Kinova policy has its own CNN, which the VAR's new
+    weights would not reach."""
+    from core.paths import data_dir
+
+    teach = ["models", "block-ends", "--world", world, "--out", str(tmp_path / "new")]
+    result = CliRunner().invoke(app, teach, env={"COLUMNS": "300"})
+    assert result.exit_code == 2 and reason in result.output
+    assert not (tmp_path / "new").exists()
+    assert not (data_dir() / "block_ends" / world).exists(), "refused before rendering"
 
 
 @pytest.mark.parametrize(
