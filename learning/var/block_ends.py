@@ -58,7 +58,9 @@ def teach_block_ends(
 ) -> BlockEndsResult:
     """The base VAR fine-tuned on views around the blocks' ends in `rooms` (the base's room ranges, a room
     per scene) with random views of those rooms replayed as half of every batch; `folder` keeps the views and
-    the fine-tune's run (an interrupted fine-tune resumes there)."""
+    the fine-tune's run, one per starting VAR (an interrupted fine-tune of the same VAR resumes there)."""
+    import hashlib
+
     from learning.var.checkpoint import load_var
     from learning.var.dataset import collect_dataset
     from learning.var.finetune import finetune_config
@@ -75,8 +77,10 @@ def teach_block_ends(
             ("random_views", config.replay_views, 1, "random"),
         )
     )  # fmt: skip
+    started_from = hashlib.sha256(Path(base_var).read_bytes()).hexdigest()[:12]
     training = finetune_config(
-        base_var, str(ends.path), config.sounds, folder / "finetune", replay_dataset=str(replay.path),
+        base_var, str(ends.path), config.sounds, folder / f"finetune-{started_from}",
+        replay_dataset=str(replay.path),
         replay_fraction=0.5, epochs=config.epochs, lr=config.learning_rate, patience=config.patience,
         seed=config.seed, threads=config.threads,
     )  # fmt: skip

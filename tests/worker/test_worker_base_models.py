@@ -443,6 +443,12 @@ def test_a_base_model_learns_where_its_blocks_end_in_its_var_and_its_policys_vie
     monkeypatch.setenv("VARBOT_BASE_MODELS_DIR", str(tmp_path / "new"))
     shown = CliRunner().invoke(app, ["models", "show"]).output
     assert f"taught block ends {taught['taught_at']}" in shown
+    again = CliRunner().invoke(app, [*teach, "--out", str(tmp_path / "again")])
+    assert again.exit_code == 0, again.output
+    retaught = load_var(tmp_path / "again" / "kuka" / "var.pt")
+    assert not torch.equal(  # a fine-tune of the taught VAR, not the first run's result found again
+        retaught.image_encoder.features[0][0].weight, student.image_encoder.features[0][0].weight
+    )
 
 
 @pytest.mark.parametrize(
