@@ -192,7 +192,7 @@ END_CLASSES = ("success", "another block", "past an end of the target", "beside 
 
 
 def play(env: gymnasium.Env, models: Models, per_intent: int, seed: int) -> list[dict]:
-    """The evaluation protocol's tries, one at a time: each try's intent, end class and final offset (m)."""
+    """The evaluation protocol's tries, one at a time: each try's intent, end class and final offset (cm)."""
     from learning.rl.evaluate import episode_schedule
     from sim.blocks import BLOCK_SIZE_M
 

@@ -112,7 +112,8 @@ def test_show_names_each_worlds_base_model_with_its_rooms_and_front_end(
     front_end = (
         f"speech-embedding-fast, refitted {kuka['refit']['refitted_at']} from speech-embedding; "
         f"policy replaced {kuka['policy_replaced']['replaced_at']}; "
-        f"taught room invariance {kuka['room_invariance']['taught_at']}"
+        f"taught room invariance {kuka['room_invariance']['taught_at']}; "
+        f"taught block ends {kuka['block_ends']['taught_at']}"
     )
     shown = f"kuka: {SHIPPED} ({kuka['built_at']}; trained in rooms: randomised; front end: {front_end})"
     assert shown in result.output
