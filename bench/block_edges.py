@@ -37,7 +37,6 @@ from matplotlib.patches import Rectangle
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 FAR_M = 0.10  # an end farther than this from the target's centre is "elsewhere"
-SETTLE_MOVES = 40  # at most this many physics steps for the gripper to settle on a scan position
 REACHED_M = 0.005  # a scan view counts only where the gripper got this close to its position
 
 
@@ -67,15 +66,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     return parser.parse_args(argv)
 
 
-def load_models(world: str, var_path: Path | None, policy_path: Path | None, tier: str) -> Models:
+def load_models(var_path: Path, policy_path: Path, tier: str) -> Models:
     from learning.rl.ppo import PPOConfig, load_policy
     from learning.rl.rewards import corpus_bank
     from learning.var.checkpoint import load_var
-    from worker.base_models import find_base
 
-    base = find_base(world) if var_path is None or policy_path is None else None
-    var = load_var(var_path or base.var_path).eval()
-    policy, payload = load_policy(policy_path or base.policy_path)
+    var = load_var(var_path).eval()
+    policy, payload = load_policy(policy_path)
     config = PPOConfig.from_dict(payload["config"])
     bank = corpus_bank(config.sounds, tier, front_end=var.front_end)
     temperature = config.reward_temperature if config.reward == "var" else None
@@ -107,6 +104,8 @@ def reward_of(match: torch.Tensor, temperature: float | None) -> torch.Tensor:
 
 
 def scan(env: gymnasium.Env, models: Models, layouts: int, reach_cm: int, seed: int) -> dict[str, list[dict]]:
+    from sim.explore import place_gripper
+
     """Per axis, one row per offset (cm): the ray's share on target, the VAR's calls, the mean reward, over
     the views where the gripper got there (the workspace's edge stops it short of some offsets)."""
     offsets = np.arange(-reach_cm, reach_cm + 1)
@@ -124,7 +123,7 @@ def scan(env: gymnasium.Env, models: Models, layouts: int, reach_cm: int, seed: 
                     images, on_target, reached = [], [], []
                     for offset in offsets:
                         wanted = centre + offset * step
-                        move_gripper_to(world, wanted)
+                        place_gripper(world, wanted)
                         images.append(world.render())
                         on_target.append(world.heard() == intent)
                         reached.append(np.hypot(*(np.asarray(world.arm.gripper_xy()) - wanted)) < REACHED_M)
@@ -144,17 +143,6 @@ def scan_row(offset_cm: int, sums: np.ndarray) -> dict[str, Any]:
         "offset_cm": offset_cm, "views": views, "ray_on_target": share(sums[1]),
         "var_says_target": share(sums[2]), "var_says_nothing": share(sums[3]), "reward_mean": share(sums[4]),
     }  # fmt: skip
-
-
-def move_gripper_to(world: Any, xy: np.ndarray) -> None:
-    """Sets the gripper's target to `xy` and lets the arm's motors bring the gripper there (up to a limit: a
-    target outside the workspace is clipped, and the gripper never gets there)."""
-    x, y = world.arm.target_xy
-    world.arm.move_target(float(xy[0] - x), float(xy[1] - y))
-    for _ in range(SETTLE_MOVES):
-        if np.hypot(*(np.asarray(world.arm.gripper_xy()) - xy)) < REACHED_M / 5:
-            return
-        world.arm.move_target(0.0, 0.0)
 
 
 @torch.inference_mode()
@@ -217,11 +205,9 @@ def play_one(
     env: gymnasium.Env, models: Models, policy: Any, observation: dict, goal: np.ndarray, intent: int
 ) -> tuple[bool, int]:
     """Plays one try to its end; (whether the gripper was over the target at any step, what it ends over)."""
-    clips = torch.from_numpy(goal)
-    inputs = models.bank.embeddings[clips] if policy.config.goal_encoder == "var" else (
-        torch.from_numpy(models.bank.features)[clips]
-    )  # fmt: skip
-    goal_features = policy.encode_goal(inputs)
+    from learning.rl.evaluate import _goal_inputs
+
+    goal_features = policy.encode_goal(_goal_inputs(models.bank, goal, policy.config.goal_encoder))
     hidden, start = policy.initial_state(1), torch.ones(1)
     touched, done, heard = False, False, -1
     while not done:
@@ -353,6 +339,7 @@ def draw_ends(axis: Any, tries: list[dict], block_m: tuple[float, ...]) -> None:
 
 
 def checkpoint_paths(args: argparse.Namespace) -> tuple[Path, Path]:
+    """The VAR and policy asked for, the world's base model's where one is not given."""
     from worker.base_models import find_base
 
     base = find_base(args.world) if args.var is None or args.policy is None else None
@@ -368,14 +355,14 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     conditions = Conditions()
     torch.set_num_threads(1)
-    models = load_models(args.world, args.var, args.policy, args.tier)
+    var_path, policy_path = checkpoint_paths(args)
+    models = load_models(var_path, policy_path, args.tier)
     results = {room: measure_room(args, models, room) for room in args.rooms.split(",")}
     measured = conditions.finish()
     report(results)
     print(describe(measured))
     png = args.out.with_suffix(".png")
     plot(results, png)
-    var_path, policy_path = checkpoint_paths(args)
     write_result(args.out, {
         "world": args.world, "var": str(var_path), "policy": str(policy_path),
         "var_sha256": sha256(var_path), "policy_sha256": sha256(policy_path),

@@ -12,6 +12,11 @@ from typing import Annotated, Any
 import typer
 
 models_app = typer.Typer(help="Base models for the simulated robots.", no_args_is_help=True)
+# options the commands that write a base model share
+BaseModelsOut = Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")]
+RecordedEvalEpisodes = Annotated[
+    int | None, typer.Option(min=1, help="default: the base model's own recipe's")
+]
 
 
 class Queue(StrEnum):
@@ -70,7 +75,7 @@ def build_base(
     var_max_steps: Annotated[int | None, typer.Option(min=1, help="overrides --var-epochs")] = None,
     policy_steps: Annotated[int, typer.Option(min=800, help="PPO environment steps")] = 300_000,
     eval_episodes_per_intent: Annotated[int, typer.Option(min=1)] = 25,
-    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+    out: BaseModelsOut = None,
     seed: Annotated[int, typer.Option()] = 0,
     device: Annotated[
         str | None, typer.Option(help="where PPO runs: auto, cpu or cuda (default: VARBOT_DEVICE, else auto)")
@@ -153,7 +158,7 @@ def adopt(
     record: Annotated[
         Path, typer.Option(exists=True, dir_okay=False, help="JSON: how they were made and what they scored")
     ],
-    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+    out: BaseModelsOut = None,
 ) -> None:
     """Make checkpoints trained elsewhere (e.g. by the benchmarks) a world's base model, with their record."""
     import json
@@ -189,14 +194,12 @@ def refit_front_end(
     extra_sounds: Annotated[
         str, typer.Option(help="comma-separated corpora whose training clips teach f_S too (no labels used)")
     ] = "",
-    eval_episodes_per_intent: Annotated[
-        int | None, typer.Option(min=1, help="default: the base model's own recipe's")
-    ] = None,
+    eval_episodes_per_intent: RecordedEvalEpisodes = None,
     steps: Annotated[int, typer.Option(min=1, help="optimiser steps teaching the new sound encoder")] = 3000,
     room_copies: Annotated[
         int, typer.Option(min=0, help="recordings of every teaching clip in simulated rooms")
     ] = 2,
-    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+    out: BaseModelsOut = None,
 ) -> None:
     """Move a world's base model to another sound front end: the same policy and image encoder, the sound
     encoder taught to agree with the old one; evaluated again in every room of its record."""
@@ -227,10 +230,8 @@ def replace_policy(
         Path,
         typer.Option(exists=True, file_okay=False, help="a finished `varbot rl train --var BASE/var.pt`"),
     ],
-    eval_episodes_per_intent: Annotated[
-        int | None, typer.Option(min=1, help="default: the base model's own recipe's")
-    ] = None,
-    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+    eval_episodes_per_intent: RecordedEvalEpisodes = None,
+    out: BaseModelsOut = None,
 ) -> None:
     """Give a world's base model another policy trained on its VAR: the same VAR, the run's policy and
     curves, evaluated again in every room of its record (the old policy's figures are kept in the record)."""
@@ -261,10 +262,8 @@ def room_invariance(
         typer.Option(min=0.0, max=1.0, help="share of views moved part of the way to grey while taught"),
     ] = 0.0,
     seed: Annotated[int, typer.Option()] = 0,
-    eval_episodes_per_intent: Annotated[
-        int | None, typer.Option(min=1, help="default: the base model's own recipe's")
-    ] = None,
-    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+    eval_episodes_per_intent: RecordedEvalEpisodes = None,
+    out: BaseModelsOut = None,
 ) -> None:
     """Teach a world's base model to see every room of its training ranges as its own training room: the image
     encoder of its VAR and of its policy's view learn, on pairs of renders of one scene, to give for any room
@@ -290,10 +289,8 @@ def block_ends(
     ] = 12_000,
     epochs: Annotated[int, typer.Option(min=1, help="the VAR fine-tune's epochs at most")] = 8,
     seed: Annotated[int, typer.Option()] = 0,
-    eval_episodes_per_intent: Annotated[
-        int | None, typer.Option(min=1, help="default: the base model's own recipe's")
-    ] = None,
-    out: Annotated[Path | None, typer.Option(help="default: <data dir>/base_models")] = None,
+    eval_episodes_per_intent: RecordedEvalEpisodes = None,
+    out: BaseModelsOut = None,
 ) -> None:
     """Teach a world's base model where its blocks end: its VAR is fine-tuned on views with the gripper placed
     around the blocks' ends in the rooms it was trained over, labelled by the simulator's ray, and its policy

@@ -25,7 +25,7 @@ from core.paths import data_subdir
 NOTHING_HEARD = -1
 SILENCE_ID = -1  # in drawn sound ids: the all-zero features
 CHUNK = 256  # images a worker renders before writing them out and reporting progress
-VIEW_KINDS = ("random", "block_ends")  # sim.explore's random_views and block_end_views
+VIEW_KINDS = {"random": "random_views", "block_ends": "block_end_views"}  # what sim.explore renders each with
 
 
 class DatasetError(ValueError):
@@ -103,9 +103,9 @@ def _collect_part(
 ) -> None:
     """Render `count` views of the kind `views` into rows [start, start+count) of the dataset files."""
     try:
-        from sim.explore import block_end_views, random_views
+        import sim.explore
 
-        render = {"random": random_views, "block_ends": block_end_views}[views]
+        render = getattr(sim.explore, VIEW_KINDS[views])
 
         images = np.load(Path(path) / "images.npy", mmap_mode="r+")
         heard = np.load(Path(path) / "heard.npy", mmap_mode="r+")
