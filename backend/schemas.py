@@ -271,6 +271,14 @@ class RunParams(BaseModel):
         description="share of the VAR fine-tune's training triplets replayed from the simulated training "
         "room with the base corpus's clips, so that it keeps what it knew (0: none)",
     )
+    replay_block_ends_share: float = Field(
+        default=0.0,
+        ge=0.0,
+        le=1.0,
+        description="in a world with blocks, share of the replayed training-room views with the gripper "
+        "placed around a block's end, labelled by the simulator (what `varbot models block-ends` teaches a "
+        "base), so that the fine-tune keeps where a block ends (0: random views only)",
+    )
     var_keep_view: float = Field(
         default=0.0,
         ge=0.0,

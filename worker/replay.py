@@ -3,7 +3,11 @@ room rendered fresh (`sim.explore.random_views`, no domain shift) paired with cl
 VAR learnt from (its checkpoint's `sound_set`), by the pre-training's own rule (`triplet_sound_ids`: the
 simulator says what is in view, as it does for the base world's training data). They join the household's
 training triplets as `fraction` of them (`varbot var finetune` mixes 25 %); the held-out triplets stay the
-household's own. Nothing large ships: the views are rendered by the worker, the clips are the corpus's."""
+household's own. Nothing large ships: the views are rendered by the worker, the clips are the corpus's.
+
+In a world with blocks, `block_ends_share` of the replayed views have the gripper placed around a block's end
+(`sim.explore.block_end_views`, labelled by the ray), what the base was taught by `varbot models block-ends`,
+so that the fine-tune keeps where a block ends. A world without blocks replays random views only."""
 
 from dataclasses import replace
 from pathlib import Path
@@ -18,7 +22,12 @@ class ReplayMissing(RuntimeError):
 
 
 def with_replay(
-    data: HouseholdData, parent_var: Path, world: str, fraction: float, seed: int
+    data: HouseholdData,
+    parent_var: Path,
+    world: str,
+    fraction: float,
+    seed: int,
+    block_ends_share: float = 0.0,
 ) -> tuple[HouseholdData, int]:
     """`data` plus replay triplets making up `fraction` of its training triplets, and how many were added."""
     if fraction <= 0:
@@ -27,7 +36,7 @@ def with_replay(
     if count == 0:
         return data, 0
     corpus = _parent_corpus(parent_var)
-    images, heard = _fresh_views(world, count, data.images.shape[1], seed)
+    images, heard = replay_views(world, count, data.images.shape[1], seed, block_ends_share)
     return joined_with_replay(data, corpus, images, heard, np.random.default_rng([seed, 41])), count
 
 
@@ -67,11 +76,18 @@ def _build_missing_corpus(sound_set: str) -> None:
     build_corpora([sound_set], progress=False, log=lambda line: None)
 
 
-def _fresh_views(world: str, count: int, image_size: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    from sim.explore import random_views
+def replay_views(
+    world: str, count: int, image_size: int, seed: int, block_ends_share: float = 0.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """`count` views of the training room and what the simulator says is in each (-1: nothing): random
+    views, then, in a world with blocks, `block_ends_share` of them placed around a block's end."""
+    from sim.explore import block_end_views, random_views
 
     try:
-        views = list(random_views(world, count, seed=seed + 4099, image_size=image_size))
+        placed = round(count * block_ends_share) if _has_blocks(world) else 0
+        views = list(random_views(world, count - placed, seed=seed + 4099, image_size=image_size))
+        if placed:
+            views += list(block_end_views(world, placed, seed=seed + 8191, image_size=image_size))
     except Exception as error:  # an unknown world, or PyBullet assets missing on this worker
         raise ReplayMissing(
             f"the simulated training room of the {world} world cannot be rendered on this worker ({error}); "
@@ -79,6 +95,12 @@ def _fresh_views(world: str, count: int, image_size: int, seed: int) -> tuple[np
         ) from error
     heard = np.array([-1 if h is None else int(h) for _, h, _ in views], dtype=np.int64)
     return np.stack([image for image, _, _ in views]).astype(np.uint8), heard
+
+
+def _has_blocks(world: str) -> bool:
+    from sim import world_class
+
+    return hasattr(world_class(world), "slot_position")
 
 
 def joined_with_replay(  # type: ignore[no-untyped-def]

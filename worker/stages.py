@@ -28,7 +28,10 @@ def var_finetune(context: RunContext, progress: Progress) -> dict[str, Any]:
 
     params = context.params
     fraction = float(run_param(params, "replay_fraction"))
-    data, replayed = with_replay(context.data, context.start_var, context.world, fraction, params["seed"])
+    block_ends_share = float(run_param(params, "replay_block_ends_share"))
+    data, replayed = with_replay(
+        context.data, context.start_var, context.world, fraction, params["seed"], block_ends_share
+    )
 
     def on_epoch(fraction: float, record: dict[str, Any]) -> bool:
         return progress.update(fraction, {"var": record}, point=record)

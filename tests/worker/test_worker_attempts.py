@@ -99,7 +99,7 @@ def test_attempts_become_snapshots_answers_become_labels_and_a_fine_tune_with_re
 
     build_corpora(["wordset"], profile="small", progress=False, log=lambda _: None)
     _version_with_corpus(robot["id"], (base_model / "var.pt").read_bytes(), "wordset")
-    params = {**TINY, "replay_fraction": 0.25, "var_keep_view": 1.0}  # the anchor, as the thorough preset
+    params = {**TINY, "replay_fraction": 0.25, "var_keep_view": 1.0, "replay_block_ends_share": 0.5}
     run = household.wait_run(household.start_run(robot["id"], **params)["id"], 300)
     assert run["status"] == "succeeded", run["error"]
     var_stage = run["metrics"]["stages"]["var_finetune"]

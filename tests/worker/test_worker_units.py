@@ -315,6 +315,25 @@ def test_replay_joins_views_of_the_training_room_paired_by_what_is_in_view_and_n
             assert negative == SILENCE_ROW or joined.clip_intent[negative] != seen
 
 
+def test_replay_can_place_a_share_of_its_views_around_the_blocks_ends_in_a_world_with_blocks() -> None:
+    from sim.explore import block_end_views, random_views
+    from worker.replay import replay_views
+
+    images, heard = replay_views("kuka", 8, 16, seed=3, block_ends_share=0.5)
+    random_part = list(random_views("kuka", 4, seed=3 + 4099, image_size=16))
+    placed_part = list(block_end_views("kuka", 4, seed=3 + 8191, image_size=16))
+    expected = random_part + placed_part
+    assert images.shape == (8, 16, 16, 3)
+    assert all((image == view[0]).all() for image, view in zip(images, expected, strict=True))
+    assert heard.tolist() == [-1 if view[1] is None else view[1] for view in expected], "the ray labels them"
+
+    plain, _ = replay_views("kuka", 8, 16, seed=3)
+    assert (plain[:4] == images[:4]).all() and not (plain[4:] == images[4:]).all()
+    rover, _ = replay_views("turtlebot", 4, 16, seed=3, block_ends_share=0.5)
+    rover_random = [view[0] for view in random_views("turtlebot", 4, seed=3 + 4099, image_size=16)]
+    assert all((a == b).all() for a, b in zip(rover, rover_random, strict=True)), "no blocks: random views"
+
+
 def test_a_fine_tune_whose_replay_corpus_is_missing_says_what_to_do(tmp_path) -> None:  # type: ignore[no-untyped-def]
     from learning.var.checkpoint import save_var
     from learning.var.model import VAR, VARConfig
