@@ -27,7 +27,8 @@ admin starts a fine-tune run (VAR fine-tune with replay → policy self-improvem
 Reported: simulated success with the household's own clips as goals, before (the active base model) and
 after (the candidate) on the same episodes, overall and per command; held-out triplet accuracy; the gate's
 verdict; answers given and the share that were *is*; triplets and the share with a spoken positive; wall
-time per stage. Every figure printed is in the JSON it writes (default bench/results/household.json).
+time per stage; the base model the robot started from (its checkpoints' sha256). Every figure printed is in
+the JSON it writes (default bench/results/household.json).
 
 With `--adapt-views N` the household first has the base model adapted to N random views of its room (POST
 …/models:adapt-to-room, `worker.room_adaptation`: the robot worker renders them and stores none), as its admin
@@ -43,6 +44,7 @@ Ctrl-C or a SIGTERM stops them all, a fine-tune in the training worker included.
 """
 
 import argparse
+import hashlib
 import os
 import random
 import re
@@ -65,10 +67,11 @@ from rich.table import Table
 
 from core.paths import data_dir
 from core.plain import name_value
-from core.robots import RobotKind
+from core.robots import RobotKind, world_of_kind
 from core.rooms import HELD_OUT_ROOMS, TRAINING_ROOM
 from varbot import services
 from varbot.services import wait_until
+from worker.base_models import SHIPPED_DIR, find_base
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULT = ROOT / "bench" / "results" / "household.json"
@@ -214,6 +217,12 @@ class Stack:
             "PYTHONUNBUFFERED": "1",
             **({"VARBOT_BASE_MODELS_DIR": str(base_models)} if base_models else {}),
         }
+        # where the workers look for a base model (worker.base_models.search_path under self.env)
+        self.base_model_roots = [
+            *([base_models] if base_models else []),
+            root / "data" / "base_models",
+            SHIPPED_DIR,
+        ]
         port = services.free_port()
         self.url = services.api_url("127.0.0.1", port)
         self.logs = root / "logs"
@@ -230,6 +239,17 @@ class Stack:
 
     def stop(self) -> None:
         self.services.stop()
+
+    def base_model(self, robot_kind: str) -> dict[str, str]:
+        """The base model the workers start a robot of this kind from, by its checkpoints' sha256 (what a path
+        holds changes when a base is replaced) and whether it is the one shipped in the repository."""
+        base = find_base(world_of_kind(robot_kind), self.base_model_roots)
+        return {
+            "world": base.world,
+            "source": "shipped" if base.folder.parent == SHIPPED_DIR else "--base-models",
+            "var_sha256": hashlib.sha256(base.var_path.read_bytes()).hexdigest(),
+            "policy_sha256": hashlib.sha256(base.policy_path.read_bytes()).hexdigest(),
+        }
 
 
 def sign_in(url: str, username: str) -> httpx.Client:
@@ -755,6 +775,7 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
         "household": {**about, "robot_kind": args.robot_kind, "room": args.room, "commands": names,
                       "recordings": len(intent_of_clip),
                       "robot_settings_at_end": admin.get(f"/api/v1/robots/{robot_id}").json()["settings"]},
+        "base_model": stack.base_model(args.robot_kind),
         "labelling": {**labelled, "wall_s": round(labelling_s, 1)},
         "run": {"id": run["id"], "status": run["status"], "error": run["error"], "preset": args.preset,
                 "params": run["params"], "stages_s": run["timings"].get("stages_s"),

@@ -65,13 +65,15 @@ def search_path() -> list[Path]:
     return [*([Path(env)] if env else []), data_dir() / "base_models", SHIPPED_DIR]
 
 
-def find_base(world: str) -> BaseModel:
-    for root in search_path():
+def find_base(world: str, roots: Sequence[Path] | None = None) -> BaseModel:
+    """The first base model of `world` along `roots` (default: this process's `search_path()`)."""
+    roots = search_path() if roots is None else roots
+    for root in roots:
         folder = root / world
         if (folder / "var.pt").is_file() and (folder / "policy.pt").is_file():
             return BaseModel(world, folder)
     raise BaseModelMissing(
-        f"no base model for the {world} world in {', '.join(map(str, search_path()))}; "
+        f"no base model for the {world} world in {', '.join(map(str, roots))}; "
         f"build one with `varbot models build-base --world {world}`"
     )
 

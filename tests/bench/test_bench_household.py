@@ -5,6 +5,7 @@ JSON. A SIGTERM mid fine-tune stops the bench and every process it started. And 
 says what is wrong."""
 
 import contextlib
+import hashlib
 import json
 import os
 import signal
@@ -53,6 +54,12 @@ def _run(stack: bench.Stack, clips: Path, out: Path, *options: str) -> dict:
     assert result["run"]["status"] == "succeeded", result["run"]["error"]
     assert result["run"]["gate"]["verdict"] in {"better", "no_change", "worse"}
     assert result["load_average"]["before"] and result["machine"]["cpu_cores"]
+    base = stack.base_model_roots[0] / "kuka"
+    assert result["base_model"] == {
+        "world": "kuka", "source": "--base-models",
+        "var_sha256": hashlib.sha256((base / "var.pt").read_bytes()).hexdigest(),
+        "policy_sha256": hashlib.sha256((base / "policy.pt").read_bytes()).hexdigest(),
+    }, "which base model the household started from"  # fmt: skip
     training = result["run"]["policy_training"]
     assert training["env_steps"] > 0 and training["recent_success_by_room"] is not None
     assert len(training["own_room_success_by_quarter"]) == 4  # None: no episode ended in a quarter
