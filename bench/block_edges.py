@@ -15,7 +15,6 @@ Prints a table, writes JSON and a PNG per room. About 3 min a room on this machi
 """
 
 import argparse
-import hashlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -25,7 +24,7 @@ import matplotlib
 import numpy as np
 import torch
 from conditions import Conditions, describe
-from result_files import write_result
+from result_files import file_sha256, write_result
 from rich.console import Console
 from rich.table import Table
 from tqdm import tqdm
@@ -104,10 +103,10 @@ def reward_of(match: torch.Tensor, temperature: float | None) -> torch.Tensor:
 
 
 def scan(env: gymnasium.Env, models: Models, layouts: int, reach_cm: int, seed: int) -> dict[str, list[dict]]:
-    from sim.explore import place_gripper
-
     """Per axis, one row per offset (cm): the ray's share on target, the VAR's calls, the mean reward, over
     the views where the gripper got there (the workspace's edge stops it short of some offsets)."""
+    from sim.explore import place_gripper
+
     offsets = np.arange(-reach_cm, reach_cm + 1)
     rng = np.random.default_rng(seed)
     # per axis and offset: views, ray on target, VAR calls the target, VAR calls nothing, reward (sums)
@@ -205,9 +204,9 @@ def play_one(
     env: gymnasium.Env, models: Models, policy: Any, observation: dict, goal: np.ndarray, intent: int
 ) -> tuple[bool, int]:
     """Plays one try to its end; (whether the gripper was over the target at any step, what it ends over)."""
-    from learning.rl.evaluate import _goal_inputs
+    from learning.rl.evaluate import goal_inputs
 
-    goal_features = policy.encode_goal(_goal_inputs(models.bank, goal, policy.config.goal_encoder))
+    goal_features = policy.encode_goal(goal_inputs(models.bank, goal, policy.config.goal_encoder))
     hidden, start = policy.initial_state(1), torch.ones(1)
     touched, done, heard = False, False, -1
     while not done:
@@ -346,11 +345,6 @@ def checkpoint_paths(args: argparse.Namespace) -> tuple[Path, Path]:
     return args.var or base.var_path, args.policy or base.policy_path
 
 
-def sha256(path: Path) -> str:
-    """Which checkpoint was measured, whatever its path holds later (a base model can be replaced)."""
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
 def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     conditions = Conditions()
@@ -365,7 +359,7 @@ def main(argv: list[str] | None = None) -> None:
     plot(results, png)
     write_result(args.out, {
         "world": args.world, "var": str(var_path), "policy": str(policy_path),
-        "var_sha256": sha256(var_path), "policy_sha256": sha256(policy_path),
+        "var_sha256": file_sha256(var_path), "policy_sha256": file_sha256(policy_path),
         "tier": args.tier, "layouts_per_command": args.layouts,
         "episodes_per_intent": args.episodes_per_intent, "seed": args.seed,
         "reward_temperature": models.temperature, "rooms": results, "png": png.name,

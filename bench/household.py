@@ -44,7 +44,6 @@ Ctrl-C or a SIGTERM stops them all, a fine-tune in the training worker included.
 """
 
 import argparse
-import hashlib
 import os
 import random
 import re
@@ -60,7 +59,7 @@ from pathlib import Path
 
 import httpx
 from conditions import Conditions, describe
-from result_files import write_result
+from result_files import file_sha256, write_result
 from rich.console import Console
 from rich.progress import Progress
 from rich.table import Table
@@ -71,7 +70,7 @@ from core.robots import RobotKind, world_of_kind
 from core.rooms import HELD_OUT_ROOMS, TRAINING_ROOM
 from varbot import services
 from varbot.services import wait_until
-from worker.base_models import SHIPPED_DIR, find_base
+from worker.base_models import SHIPPED_DIR, find_base, search_path
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULT = ROOT / "bench" / "results" / "household.json"
@@ -217,12 +216,6 @@ class Stack:
             "PYTHONUNBUFFERED": "1",
             **({"VARBOT_BASE_MODELS_DIR": str(base_models)} if base_models else {}),
         }
-        # where the workers look for a base model (worker.base_models.search_path under self.env)
-        self.base_model_roots = [
-            *([base_models] if base_models else []),
-            root / "data" / "base_models",
-            SHIPPED_DIR,
-        ]
         port = services.free_port()
         self.url = services.api_url("127.0.0.1", port)
         self.logs = root / "logs"
@@ -243,12 +236,12 @@ class Stack:
     def base_model(self, robot_kind: str) -> dict[str, str]:
         """The base model the workers start a robot of this kind from, by its checkpoints' sha256 (what a path
         holds changes when a base is replaced) and whether it is the one shipped in the repository."""
-        base = find_base(world_of_kind(robot_kind), self.base_model_roots)
+        base = find_base(world_of_kind(robot_kind), search_path(self.env))
         return {
             "world": base.world,
             "source": "shipped" if base.folder.parent == SHIPPED_DIR else "--base-models",
-            "var_sha256": hashlib.sha256(base.var_path.read_bytes()).hexdigest(),
-            "policy_sha256": hashlib.sha256(base.policy_path.read_bytes()).hexdigest(),
+            "var_sha256": file_sha256(base.var_path),
+            "policy_sha256": file_sha256(base.policy_path),
         }
 
 

@@ -7,6 +7,7 @@ machine. Every absolute path inside a
 string is rewritten, so an annotated path ("/…/final.pt (6 epochs)") is too.
 """
 
+import hashlib
 import json
 import os
 import re
@@ -54,6 +55,11 @@ def resolve(written: str) -> Path:
     if written.startswith(DATA_DIR_MARK + "/"):
         return data_dir() / written.removeprefix(DATA_DIR_MARK + "/")
     return REPO_ROOT / written
+
+
+def file_sha256(path: Path) -> str:
+    """Which file a result measured, whatever its path holds later (a base model can be replaced)."""
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def write_result(path: Path, result: dict) -> None:

@@ -4,6 +4,7 @@ What varbot creates there is private to the account that runs it (folders 0700, 
 holds password hashes and session HMACs, the blobs hold the household's voices."""
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 REPO_ROOT = Path(__file__).resolve().parent.parent
@@ -28,7 +29,12 @@ def private_file(path: Path) -> Path:
 
 def data_dir() -> Path:
     """`$VARBOT_DATA_DIR`, default `./data`; created (0700) on first use."""
-    return private_dir(Path(os.environ.get("VARBOT_DATA_DIR", "data")).expanduser().resolve())
+    return private_dir(data_dir_in(os.environ))
+
+
+def data_dir_in(environ: Mapping[str, str]) -> Path:
+    """The data dir a process with this environment uses (not created)."""
+    return Path(environ.get("VARBOT_DATA_DIR", "data")).expanduser().resolve()
 
 
 def data_subdir(*parts: str) -> Path:

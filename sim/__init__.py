@@ -31,3 +31,8 @@ def world_class(world: str) -> type:
     from gymnasium.envs.registration import load_env_creator
 
     return load_env_creator(spec(world_id(world)).entry_point)
+
+
+def has_blocks(world: str) -> bool:
+    """Whether a world has blocks to place the gripper around (the arm worlds, not the TurtleBot's arena)."""
+    return hasattr(world_class(world), "slot_position")

@@ -6,7 +6,7 @@ from collections.abc import Iterator
 import gymnasium as gym
 import numpy as np
 
-from sim import world_id
+from sim import has_blocks, world_id
 from sim.domain import DomainShift, RoomRanges
 
 
@@ -64,11 +64,10 @@ def block_end_views(
     The same arguments give the same views."""
     if count < 0:
         raise ValueError(f"count must be zero or more views, got {count}")
+    if not has_blocks(world):
+        raise ValueError(f"the {world} world has no blocks to place the gripper around")
     env = gym.make(world_id(world), image_size=image_size, domain=domain)
     scene = env.unwrapped
-    if not hasattr(scene, "slot_position"):
-        env.close()
-        raise ValueError(f"the {world} world has no blocks to place the gripper around")
     rng = np.random.default_rng(seed)
     try:
         for produced in range(count):

@@ -12,13 +12,13 @@ import os
 import shutil
 import sys
 import time
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from core.paths import REPO_ROOT, data_dir
+from core.paths import REPO_ROOT, data_dir, data_dir_in
 from core.rooms import HELD_OUT_ROOMS, RANDOMISED_ROOMS, TRAINING_ROOM, RoomRanges, world_room
 
 if TYPE_CHECKING:
@@ -60,9 +60,11 @@ class BaseModel:
         return str(self.record.get("feature_kind", "speech"))
 
 
-def search_path() -> list[Path]:
-    env = os.environ.get("VARBOT_BASE_MODELS_DIR")
-    return [*([Path(env)] if env else []), data_dir() / "base_models", SHIPPED_DIR]
+def search_path(environ: Mapping[str, str] | None = None) -> list[Path]:
+    """Where a process with `environ` (default: this one's) looks for base models, in order."""
+    environ = os.environ if environ is None else environ
+    own = environ.get("VARBOT_BASE_MODELS_DIR")
+    return [*([Path(own)] if own else []), data_dir_in(environ) / "base_models", SHIPPED_DIR]
 
 
 def find_base(world: str, roots: Sequence[Path] | None = None) -> BaseModel:

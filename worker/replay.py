@@ -81,10 +81,11 @@ def replay_views(
 ) -> tuple[np.ndarray, np.ndarray]:
     """`count` views of the training room and what the simulator says is in each (-1: nothing): random
     views, then, in a world with blocks, `block_ends_share` of them placed around a block's end."""
+    from sim import has_blocks
     from sim.explore import block_end_views, random_views
 
     try:
-        placed = round(count * block_ends_share) if _has_blocks(world) else 0
+        placed = round(count * block_ends_share) if has_blocks(world) else 0
         views = list(random_views(world, count - placed, seed=seed + 4099, image_size=image_size))
         if placed:
             views += list(block_end_views(world, placed, seed=seed + 8191, image_size=image_size))
@@ -95,12 +96,6 @@ def replay_views(
         ) from error
     heard = np.array([-1 if h is None else int(h) for _, h, _ in views], dtype=np.int64)
     return np.stack([image for image, _, _ in views]).astype(np.uint8), heard
-
-
-def _has_blocks(world: str) -> bool:
-    from sim import world_class
-
-    return hasattr(world_class(world), "slot_position")
 
 
 def joined_with_replay(  # type: ignore[no-untyped-def]

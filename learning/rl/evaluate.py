@@ -121,7 +121,7 @@ def evaluate(
         start = torch.ones(num_envs)
         bar = tqdm(total=len(schedule), unit="episode", desc=f"eval {world}", disable=not progress)
         with torch.inference_mode():
-            goal_features = policy.encode_goal(_goal_inputs(goals, goal_clip, config.goal_encoder))
+            goal_features = policy.encode_goal(goal_inputs(goals, goal_clip, config.goal_encoder))
             var_embedding = _encode(var, obs["image"], config.var_dim)
             while len(results) < len(schedule):
                 if gif_path is not None and episode[0] < gif_episodes and episode[0] >= 0:
@@ -161,7 +161,7 @@ def evaluate(
                     )
                     goal_features = goal_features.clone()
                     goal_features[ended] = policy.encode_goal(
-                        _goal_inputs(goals, goal_clip[ended], config.goal_encoder)
+                        goal_inputs(goals, goal_clip[ended], config.goal_encoder)
                     )
         bar.close()
     finally:
@@ -222,7 +222,8 @@ def _encode(var: torch.nn.Module | None, images: np.ndarray, var_dim: int) -> to
     return var.encode_image(torch.from_numpy(images))
 
 
-def _goal_inputs(goals: ClipBank, clips: np.ndarray, goal_encoder: str) -> torch.Tensor:
+def goal_inputs(goals: ClipBank, clips: np.ndarray, goal_encoder: str) -> torch.Tensor:
+    """What the policy's goal encoder takes for these clips: their VAR embeddings, or their features."""
     index = torch.from_numpy(np.asarray(clips))
     if goal_encoder == "var":
         return goals.embeddings[index]

@@ -38,9 +38,9 @@ class BlockEndsConfig:
 
 def check_world_has_blocks(world: str) -> None:
     """Refuse a world with no blocks to place the gripper around (the TurtleBot's arena) before rendering."""
-    from sim import world_class
+    from sim import has_blocks
 
-    if not hasattr(world_class(world), "slot_position"):
+    if not has_blocks(world):
         raise ValueError(
             f"the {world} world has no blocks whose ends a VAR could learn: only the arm worlds (kuka, "
             f"kinova) have them"

@@ -54,7 +54,7 @@ def _run(stack: bench.Stack, clips: Path, out: Path, *options: str) -> dict:
     assert result["run"]["status"] == "succeeded", result["run"]["error"]
     assert result["run"]["gate"]["verdict"] in {"better", "no_change", "worse"}
     assert result["load_average"]["before"] and result["machine"]["cpu_cores"]
-    base = stack.base_model_roots[0] / "kuka"
+    base = Path(stack.env["VARBOT_BASE_MODELS_DIR"]) / "kuka"
     assert result["base_model"] == {
         "world": "kuka", "source": "--base-models",
         "var_sha256": hashlib.sha256((base / "var.pt").read_bytes()).hexdigest(),
