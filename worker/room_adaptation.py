@@ -33,10 +33,13 @@ class AdaptationRefused(ValueError):
     """What cannot be adapted, with what to do."""
 
 
-def adapt_robot_to_room(robot_id: int, household_id: int, views: int, share: float) -> dict[str, Any]:
+def adapt_robot_to_room(
+    robot_id: int, household_id: int, views: int, share: float, seed: int | None = None
+) -> dict[str, Any]:
     """Adapt the robot's active model (or its base model) to `views` views of its room: a simulated robot
-    moves at random and its camera's views are used as they come, never stored (they would crowd the Label
-    page); a real one's are its newest stored snapshots. The new active version's id and what changed."""
+    moves at random (from `seed`, a fresh one when None) and its camera's views are used as they come, never
+    stored (they would crowd the Label page); a real one's are its newest stored snapshots. The new active
+    version's id and what changed."""
     blobs = get_blob_store()
     with get_session_factory()() as session:
         robot = session.get(models.Robot, robot_id)
@@ -48,7 +51,7 @@ def adapt_robot_to_room(robot_id: int, household_id: int, views: int, share: flo
                 f"the active version {parent.id} has no VAR to adapt: activate one that has"
             )
         with tempfile.TemporaryDirectory(dir=data_subdir("room_adaptation")) as work:
-            version = _adapted_version(session, blobs, robot, parent, views, share, Path(work))
+            version = _adapted_version(session, blobs, robot, parent, views, share, seed, Path(work))
         model_versions.activate(session, version)  # commits
         return {
             "robot_id": robot.id,
@@ -65,6 +68,7 @@ def _adapted_version(
     parent: models.ModelVersion,
     views: int,
     share: float,
+    seed: int | None,
     folder: Path,
 ) -> models.ModelVersion:
     """The adapted files made in `folder` (a scratch folder) and stored as a new candidate version."""
@@ -72,7 +76,7 @@ def _adapted_version(
     policy_path = None
     if parent.policy_key is not None:
         policy_path = materialise(blobs, parent.policy_key, folder / "parent" / "policy.pt")
-    source, images = room_views(session, blobs, robot, views, share, _image_size(var_path))
+    source, images = room_views(session, blobs, robot, views, share, _image_size(var_path), seed)
     var_out, policy_out, record = adapted_files(var_path, policy_path, images, share, folder)
     record = {**record, "views_from": source, "from_version": parent.id}
     return model_versions.create_version(
@@ -87,16 +91,23 @@ def _adapted_version(
 
 
 def room_views(
-    session: Any, blobs: Any, robot: models.Robot, count: int, share: float, image_size: int
+    session: Any,
+    blobs: Any,
+    robot: models.Robot,
+    count: int,
+    share: float,
+    image_size: int,
+    seed: int | None = None,
 ) -> tuple[dict[str, Any] | None, np.ndarray]:
-    """Where the views come from, and the views (none for share 0, which needs none)."""
+    """Where the views come from, and the views (none for share 0, which needs none); a simulated robot's
+    random moves start from `seed` (a fresh one when None)."""
     if share == 0:
         return None, np.zeros((0, image_size, image_size, 3), dtype=np.uint8)
     if models.RobotKind(robot.kind).simulated:
         from sim.explore import random_views
         from worker.capture import fresh_seed
 
-        seed = fresh_seed()
+        seed = fresh_seed() if seed is None else seed
         room = room_of(robot.settings or {})
         drawn = random_views(world_of_kind(robot.kind), count, seed=seed, image_size=image_size, domain=room)
         return {"rendered": count, "seed": seed}, np.stack([image for image, _, _ in drawn])

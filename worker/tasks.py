@@ -82,7 +82,9 @@ def capture_snapshots(self: Task, robot_id: int, household_id: int, count: int) 
 
 
 @app.task(name=broker.TASK_ADAPT_TO_ROOM, **_ROBOT)
-def adapt_to_room(self: Task, robot_id: int, household_id: int, views: int, share: float) -> dict:
+def adapt_to_room(
+    self: Task, robot_id: int, household_id: int, views: int, share: float, seed: int | None = None
+) -> dict:
     """The robot's model adapted to views of its room (`worker.room_adaptation`), made active; what cannot
     be adapted (a real robot with too few frames, no VAR) ends the task as refused, saying what to do."""
     from backend.services.task_status import write_status
@@ -94,7 +96,7 @@ def adapt_to_room(self: Task, robot_id: int, household_id: int, views: int, shar
 
     report("running", "adapting the model to the room's views")
     try:
-        result = adapt_robot_to_room(robot_id, household_id, views, share)
+        result = adapt_robot_to_room(robot_id, household_id, views, share, seed)
     except AdaptationRefused as refusal:
         report("refused", str(refusal))
         return {"robot_id": robot_id, "refused": str(refusal)}

@@ -23,12 +23,15 @@ def live_views(session: Session, robot: models.Robot) -> int:
     )
 
 
-def ask_to_adapt(session: Session, robot: models.Robot, views: int, share: float, task_id: str) -> int:
+def ask_to_adapt(
+    session: Session, robot: models.Robot, views: int, share: float, task_id: str, seed: int | None = None
+) -> int:
     """Queue the adaptation to `views` views of the robot's room; how many it will use. A simulated robot's
-    are rendered by the robot worker; a real one's are its newest stored views, and a real robot with too
-    few is refused at once, saying how many more to capture (share 0 needs none)."""
+    are rendered by the robot worker (from `seed`'s random moves, a fresh one when None); a real one's are
+    its newest stored views, and a real robot with too few is refused at once, saying how many more to
+    capture (share 0 needs none)."""
     if models.RobotKind(robot.kind).simulated or share == 0:
-        queue_adaptation(robot, views, share, task_id)
+        queue_adaptation(robot, views, share, task_id, seed)
         return views if share > 0 else 0  # a simulated robot's views are rendered for it
     have = live_views(session, robot)
     if have < MIN_ROOM_VIEWS:
@@ -37,12 +40,16 @@ def ask_to_adapt(session: Session, robot: models.Robot, views: int, share: float
             f"{MIN_ROOM_VIEWS}: send {MIN_ROOM_VIEWS - have} more of its camera frames first (POST "
             "…/snapshots, or …/snapshots:capture for an arm the robot worker drives)"
         )
-    queue_adaptation(robot, views, share, task_id)
+    queue_adaptation(robot, views, share, task_id, seed)
     return min(have, views)
 
 
-def queue_adaptation(robot: models.Robot, views: int, share: float, task_id: str) -> None:
-    kwargs = {"robot_id": robot.id, "household_id": robot.household_id, "views": views, "share": share}
+def queue_adaptation(
+    robot: models.Robot, views: int, share: float, task_id: str, seed: int | None = None
+) -> None:
+    kwargs = {
+        "robot_id": robot.id, "household_id": robot.household_id, "views": views, "share": share, "seed": seed
+    }  # fmt: skip
     try:
         write_status(broker.adaptation_status_key(task_id), queued(robot))
         broker.send_task(broker.TASK_ADAPT_TO_ROOM, kwargs, broker.QUEUE_ROBOT, task_id)

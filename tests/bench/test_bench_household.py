@@ -104,7 +104,7 @@ def test_the_training_room_is_scored_before_and_after_by_evaluate_runs_each_adap
     stack: bench.Stack, folders: tuple[Path, Path], tmp_path: Path
 ) -> None:
     options = ["--room", "unseen_room", "--labelling", "views", "--views", "20", "--household", "checking"]
-    adapted = ["--adapt-views", str(MIN_ROOM_VIEWS)]
+    adapted = ["--adapt-views", str(MIN_ROOM_VIEWS), "--adapt-seed", "5"]
     options += ["--check-room", "training", *adapted]
     result = _run(stack, folders[0], tmp_path / "checked.json", *options)
     adaptation = result["room_adaptation"]
@@ -126,6 +126,8 @@ def test_the_training_room_is_scored_before_and_after_by_evaluate_runs_each_adap
     active = next(v for v in versions if v["status"] == "active")
     candidate = next(v for v in versions if v["run_id"] == result["run"]["id"])
     assert active["id"] in (adaptation["version_id"], candidate["id"]), "the versions before, given back"
+    adapted_version = next(v for v in versions if v["id"] == adaptation["version_id"])
+    assert adaptation["seed"] == adapted_version["metrics"]["room_adaptation"]["views_from"]["seed"] == 5
 
 
 def test_attempts_alone_and_views_alone_in_the_other_rooms(

@@ -2,7 +2,8 @@
 with no labels, move the batch-norm statistics of its VAR (and of a policy's VAR view); the result is the
 active version and a rollback undoes it. A fine-tune starts from the version the adaptation came from and is
 measured against the adapted one; told `finetune_from_unadapted: false`, it fine-tunes the adapted version
-and keeps the room's statistics. A robot with too few views is told how many more to capture."""
+and keeps the room's statistics. A simulated robot's views come from seeded random moves: one seed, one
+adaptation. A robot with too few views is told how many more to capture."""
 
 import io
 
@@ -96,6 +97,26 @@ def test_a_robot_adapts_to_its_room_from_its_views_and_fine_tunes_from_the_versi
 
     rolled = household.client.post(f"/api/v1/robots/{robot}/models:rollback")
     assert rolled.status_code == 200 and rolled.json()["id"] == base["id"], "a rollback undoes it"
+
+
+def test_a_simulated_robot_adapted_twice_with_one_seed_sees_the_same_views_and_another_seed_other_views(
+    stack: Stack, household: Household, base_model
+) -> None:  # type: ignore[no-untyped-def]
+    body = {"name": "seeded-adapting-arm", "kind": "kuka-sim", "settings": {"domain": "unseen_room"}}
+    robot = household.client.post("/api/v1/robots", json=body).json()["id"]
+
+    def adapted_statistics(seed: int) -> dict[str, torch.Tensor]:
+        adapted = _adapt(household, robot, views=MIN_ROOM_VIEWS, share=0.5, seed=seed)
+        assert adapted["status"]["state"] == "done", adapted["status"]
+        version = next(v for v in household.versions(robot) if v["id"] == adapted["status"]["version_id"])
+        assert version["metrics"]["room_adaptation"]["views_from"]["seed"] == seed
+        return _split(_var_state(version))[0]
+
+    first, again, other = adapted_statistics(11), adapted_statistics(11), adapted_statistics(12)
+    assert all(torch.equal(first[k], again[k]) for k in first), "one seed, one adaptation"
+    assert any(not torch.equal(first[k], other[k]) for k in first), "another seed, other views"
+    refused = household.client.post(f"/api/v1/robots/{robot}/models:adapt-to-room", json={"seed": -1})
+    assert refused.status_code == 422 and "seed" in refused.text
 
 
 def test_a_real_robot_with_too_few_frames_is_told_how_many_more_to_send(

@@ -28,6 +28,13 @@ class AdaptRequest(BaseModel):
         description="how far the statistics move toward the room's (1: all the way; 0: back to the base "
         "model's, for a robot back in its training room, and no views are needed)",
     )
+    seed: int | None = Field(
+        default=None,
+        ge=0,
+        le=2**31 - 1,
+        description="a simulated robot's random moves: the same seed renders the same views, so the same "
+        "adaptation (none: a fresh draw each time; a real robot's views are its newest frames, seed or not)",
+    )
 
 
 class AdaptQueued(BaseModel):
@@ -78,7 +85,7 @@ def adapt_to_room(robot_id: PathId, body: AdaptRequest, caller: AdminDep, sessio
     …/adaptations/{task_id}."""
     robot = robots.get_robot(session, caller.household_id, robot_id)
     task_id = uuid.uuid4().hex
-    views = ask_to_adapt(session, robot, body.views, body.share, task_id)
+    views = ask_to_adapt(session, robot, body.views, body.share, task_id, body.seed)
     return AdaptQueued(task_id=task_id, robot_id=robot.id, views=views, queue=broker.QUEUE_ROBOT)
 
 
