@@ -12,7 +12,7 @@ from backend.api.ranges import ranged_response
 from backend.api.responses import errors
 from backend.deps import BlobsDep, CallerDep, SessionDep, SettingsDep
 from backend.errors import Conflict, Invalid, NotFound
-from backend.schemas import DbId, PathId, QueryId
+from backend.schemas import DbId, PathId, QueryId, Seed
 from backend.services import attempts, robots, snapshots
 from core.robots import worker_drives
 
@@ -35,10 +35,8 @@ class AttemptsRequest(BaseModel):
     commands: list[CommandWord] | None = Field(
         default=None, max_length=50, description="command names (or keys) to attempt; default: every one"
     )
-    seed: int | None = Field(
+    seed: Seed | None = Field(
         default=None,
-        ge=0,
-        lt=2**31 - 1,
         description="the same seed with the same model, commands and answers so far gives the same attempts "
         "and random views (to compare two fine-tunes on the same labels); default: new ones each time",
     )

@@ -8,7 +8,7 @@ from backend import broker, schemas
 from backend.api.responses import errors
 from backend.deps import AdminDep, CallerDep, SessionDep
 from backend.errors import NotFound
-from backend.schemas import PathId
+from backend.schemas import PathId, Seed
 from backend.services import model_versions, robots
 from backend.services.room_adaptation import adaptation_status, ask_to_adapt
 from core.rooms import MIN_ROOM_VIEWS, ROOM_VIEWS
@@ -28,10 +28,8 @@ class AdaptRequest(BaseModel):
         description="how far the statistics move toward the room's (1: all the way; 0: back to the base "
         "model's, for a robot back in its training room, and no views are needed)",
     )
-    seed: int | None = Field(
+    seed: Seed | None = Field(
         default=None,
-        ge=0,
-        le=2**31 - 1,
         description="a simulated robot's random moves: the same seed renders the same views, so the same "
         "adaptation (none: a fresh draw each time; a real robot's views are its newest frames, seed or not)",
     )
