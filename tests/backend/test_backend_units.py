@@ -1,4 +1,5 @@
-"""The pieces under the API: resampler, WAV length check, blob store and its orphan sweep, settings."""
+"""The pieces under the API: resampler, WAV length check, blob store and its orphan sweep, settings, the
+bounds of a seed."""
 
 import os
 import time
@@ -93,3 +94,25 @@ def test_default_secrets_are_refused_outside_development(monkeypatch) -> None:
         Settings(
             environment="production", secret_key="s3cret", database_url="postgresql://u:changethis@db/varbot"
         )
+
+
+@pytest.mark.parametrize("request_kind", ["run", "attempts", "room adaptation"])
+def test_every_request_that_takes_a_seed_takes_the_same_range(request_kind: str) -> None:
+    from pydantic import ValidationError
+
+    from backend.api.routes.attempts import AttemptsRequest
+    from backend.api.routes.models import AdaptRequest
+    from backend.schemas import MAX_SEED, RunParams
+    from backend.services import runs
+
+    def request(seed: int) -> object:
+        if request_kind == "run":
+            return RunParams(**{**runs.PRESETS["standard"], "seed": seed})
+        if request_kind == "attempts":
+            return AttemptsRequest(count=1, seed=seed)
+        return AdaptRequest(seed=seed)
+
+    assert request(0).seed == 0 and request(MAX_SEED).seed == MAX_SEED
+    for out_of_range in (-1, MAX_SEED + 1):
+        with pytest.raises(ValidationError, match="seed"):
+            request(out_of_range)
