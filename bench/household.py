@@ -57,6 +57,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import httpx
 from conditions import Conditions, describe
@@ -73,6 +74,9 @@ from varbot import services
 from varbot.services import wait_until
 from worker.base_models import SHIPPED_DIR, find_base, search_path
 
+if TYPE_CHECKING:
+    from learning.sounds import SoundCorpus
+
 ROOT = Path(__file__).resolve().parent.parent
 RESULT = ROOT / "bench" / "results" / "household.json"
 PASSWORD = "household bench password"
@@ -82,6 +86,8 @@ SIMULATED_KINDS = tuple(kind.value for kind in RobotKind if kind.simulated)
 CLIP_NAME = re.compile(r"^(?P<member>.+?)_(?P<intent>\d+)(?:_(?P<take>[^_]+))?\.wav$", re.IGNORECASE)
 ATTEMPTS_PER_REQUEST = 100  # the API's most per request
 MOST_SKIPPED = 100  # the most attempts GET /attempts/next takes to skip
+MEMBERS = 3  # the standard household: members, each one unheard speaker of the corpus
+CLIPS_PER_COMMAND = 2  # … recording every command twice
 console = Console()
 
 
@@ -182,17 +188,26 @@ def synthesised_recordings(
     from learning.sounds import load_corpus
 
     corpus = load_corpus(sounds).subset(split)
+    recordings = [
+        Recording(str(corpus.speaker[row]), int(corpus.intent[row]), Path(corpus.clip[row]).read_bytes())
+        for row in household_rows(corpus, members, clips_per_command, seed)
+    ]
+    return recordings, list(corpus.intent_names)
+
+
+def household_rows(corpus: "SoundCorpus", members: int, clips_per_command: int, seed: int) -> list[int]:
+    """The corpus rows a synthesised household records: `members` of the corpus's speakers (shuffled by
+    `seed`), each with the first `clips_per_command` clips of every command."""
     speakers = sorted(set(corpus.speaker.tolist()))
     random.Random(seed).shuffle(speakers)
-    recordings = []
+    rows = []
     for speaker in speakers[:members]:
         for intent in range(len(corpus.intent_names)):
-            rows = [
+            takes = [
                 i for i in range(len(corpus)) if corpus.speaker[i] == speaker and corpus.intent[i] == intent
             ]
-            for row in rows[:clips_per_command]:
-                recordings.append(Recording(str(speaker), intent, Path(corpus.clip[row]).read_bytes()))
-    return recordings, list(corpus.intent_names)
+            rows += takes[:clips_per_command]
+    return rows
 
 
 # --- the stack and the family -----------------------------------------------------------------------------
@@ -867,8 +882,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         help="attempts / mixed: seed the robot's attempts and random views, so that two benches with the "
         "same base model label the same views (default: fresh ones, as a household gets)",
     )
-    parser.add_argument("--members", type=int, default=3, help="synthesised voices: speakers")
-    parser.add_argument("--clips-per-command", type=int, default=2, help="synthesised voices: per member")
+    parser.add_argument("--members", type=int, default=MEMBERS, help="synthesised voices: speakers")
+    parser.add_argument(
+        "--clips-per-command", type=int, default=CLIPS_PER_COMMAND, help="synthesised voices: per member"
+    )
     parser.add_argument("--sounds", default="wordset")
     parser.add_argument("--split", default="unheard-real-voices")
     parser.add_argument("--preset", default="standard", choices=["quick", "standard", "thorough"])

@@ -17,6 +17,7 @@ training room and in randomised rooms, interleaved (so both meet the same load),
         [--rooms 'unseen_room[floor_texture=none],unseen_room[object_rgb=none]']  # none: the world's own look
     nice -n 10 .venv/bin/python bench/rooms.py --tag room-adapted --adapt-views 400 [--adapt-share 0.5]
         # each room's cells from the base adapted to 400 random views of that room (POST …:adapt-to-room)
+        [--household-voices 0]  # goal clips: bench/household.py's synthesised family of seed 0, not the tier
     nice -n 10 .venv/bin/python bench/rooms.py --env-speed [--rounds 4]
 """
 
@@ -28,6 +29,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
@@ -39,6 +41,9 @@ from rich.table import Table
 
 from core.rooms import HELD_OUT_ROOMS, TRAINING_ROOM, RoomRanges
 from worker.base_models import BaseModel
+
+if TYPE_CHECKING:
+    from learning.rl.rewards import ClipBank
 
 RESULTS = Path(__file__).resolve().parent / "results" / "rooms.json"
 SPEED_RESULTS = RESULTS.with_name("rooms_env_speed.json")
@@ -68,6 +73,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--adapt-share", type=float, default=0.5, help="--adapt-views: how far the statistics move"
     )
     parser.add_argument("--adapt-seed", type=int, default=7, help="--adapt-views: the views' seed")
+    parser.add_argument(
+        "--household-voices", type=int, default=None, metavar="SEED",
+        help="goal clips: the household bench's synthesised family of this seed in each tier (its members "
+        "and clips a command as bench/household.py's defaults), not the whole tier",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, default=RESULTS)
     return parser.parse_args(argv)
 
@@ -95,6 +105,7 @@ def evaluate_base(args: argparse.Namespace, save: Callable[[dict], None]) -> dic
             if args.adapt_views
             else None
         ),
+        "goal_clips": goal_clips_said(args.household_voices),
         "cells": {},
     }
 
@@ -111,8 +122,36 @@ def evaluate_base(args: argparse.Namespace, save: Callable[[dict], None]) -> dic
             evaluate_in_rooms(
                 var_path, policy_path, [room], args.splits.split(","),
                 episodes_per_intent=args.episodes_per_intent, seed=args.seed, on_cell=on_cell,
+                goal_clips=None if args.household_voices is None else household_goals(args.household_voices),
             )  # fmt: skip
     return entry
+
+
+def household_goals(seed: int) -> Callable[[str, str, str], "ClipBank"]:
+    """A tier's goal clips as the household bench's synthesised family of `seed` records them."""
+    import numpy as np
+    from household import CLIPS_PER_COMMAND, MEMBERS, household_rows
+
+    from learning.rl.rewards import ClipBank
+    from learning.sounds import load_corpus
+
+    def goals(sounds: str, split: str, front_end: str) -> ClipBank:
+        corpus = load_corpus(sounds, front_end=front_end).subset(split)
+        rows = household_rows(corpus, MEMBERS, CLIPS_PER_COMMAND, seed)
+        return ClipBank(corpus.features[rows].astype(np.float32), corpus.intent[rows].astype(np.int64))
+
+    return goals
+
+
+def goal_clips_said(household_seed: int | None) -> str:
+    if household_seed is None:
+        return "every clip of the tier"
+    from household import CLIPS_PER_COMMAND, MEMBERS
+
+    return (
+        f"the household bench's family of seed {household_seed}: {MEMBERS} speakers of the tier, "
+        f"{CLIPS_PER_COMMAND} clips a command each"
+    )
 
 
 def adapted_to(room: str, base: BaseModel, args: argparse.Namespace, folder: Path) -> tuple[Path, Path]:

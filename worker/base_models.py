@@ -24,6 +24,8 @@ from core.rooms import HELD_OUT_ROOMS, RANDOMISED_ROOMS, TRAINING_ROOM, RoomRang
 if TYPE_CHECKING:
     import torch
 
+    from learning.rl.rewards import ClipBank
+
 SHIPPED_DIR = REPO_ROOT / "worker" / "base_models"
 RECORD = "base.json"
 EVALUATION_SEED_OFFSET = 999  # a base's evaluation episodes come from its recipe's seed + this
@@ -558,9 +560,11 @@ def evaluate_in_rooms(
     seed: int = 12345,
     progress: bool = False,
     on_cell: Callable[[str, str, dict[str, Any]], None] | None = None,
+    goal_clips: Callable[[str, str, str], "ClipBank"] | None = None,
 ) -> dict[str, dict[str, dict[str, Any]]]:
     """Zero-shot success of a VAR + policy in each room on each unheard tier (default: all of the corpus's),
-    with the RL evaluation protocol: {room: {tier: cell}}. `on_cell(room, tier, cell)` hears of each cell."""
+    with the RL evaluation protocol: {room: {tier: cell}}. `on_cell(room, tier, cell)` hears of each cell.
+    `goal_clips(sounds, tier, front end)` picks a tier's goal clips (default: all of them)."""
     import torch
 
     from learning.rl.evaluate import evaluate
@@ -576,7 +580,11 @@ def evaluate_in_rooms(
     splits = splits or [s for s in load_corpus(config.sounds).splits if s != "train"]
     evaluations: dict[str, dict[str, dict[str, Any]]] = {}
     for split in splits:
-        goals = corpus_bank(config.sounds, split, front_end=var.front_end).embed(var)
+        if goal_clips is None:
+            goals = corpus_bank(config.sounds, split, front_end=var.front_end)
+        else:
+            goals = goal_clips(config.sounds, split, var.front_end)
+        goals.embed(var)
         for room in rooms:
             tick = time.perf_counter()
             result = evaluate(
