@@ -60,6 +60,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import httpx
+import numpy as np
 from conditions import Conditions, describe
 from result_files import file_sha256, write_result
 from rich.console import Console
@@ -200,14 +201,12 @@ def household_rows(corpus: "SoundCorpus", members: int, clips_per_command: int, 
     `seed`), each with the first `clips_per_command` clips of every command."""
     speakers = sorted(set(corpus.speaker.tolist()))
     random.Random(seed).shuffle(speakers)
-    rows = []
-    for speaker in speakers[:members]:
-        for intent in range(len(corpus.intent_names)):
-            takes = [
-                i for i in range(len(corpus)) if corpus.speaker[i] == speaker and corpus.intent[i] == intent
-            ]
-            rows += takes[:clips_per_command]
-    return rows
+    return [
+        int(row)
+        for speaker in speakers[:members]
+        for intent in range(len(corpus.intent_names))
+        for row in np.flatnonzero((corpus.speaker == speaker) & (corpus.intent == intent))[:clips_per_command]
+    ]
 
 
 # --- the stack and the family -----------------------------------------------------------------------------

@@ -129,16 +129,14 @@ def evaluate_base(args: argparse.Namespace, save: Callable[[dict], None]) -> dic
 
 def household_goals(seed: int) -> Callable[[str, str, str], "ClipBank"]:
     """A tier's goal clips as the household bench's synthesised family of `seed` records them."""
-    import numpy as np
     from household import CLIPS_PER_COMMAND, MEMBERS, household_rows
 
-    from learning.rl.rewards import ClipBank
+    from learning.rl.rewards import ClipBank, clip_bank_of
     from learning.sounds import load_corpus
 
     def goals(sounds: str, split: str, front_end: str) -> ClipBank:
         corpus = load_corpus(sounds, front_end=front_end).subset(split)
-        rows = household_rows(corpus, MEMBERS, CLIPS_PER_COMMAND, seed)
-        return ClipBank(corpus.features[rows].astype(np.float32), corpus.intent[rows].astype(np.int64))
+        return clip_bank_of(corpus, household_rows(corpus, MEMBERS, CLIPS_PER_COMMAND, seed))
 
     return goals
 

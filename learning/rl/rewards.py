@@ -16,10 +16,13 @@ A run's reward is one of the `RewardFunction`s below, chosen by `make_reward` fr
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal, Protocol
+from typing import TYPE_CHECKING, Literal, Protocol
 
 import numpy as np
 import torch
+
+if TYPE_CHECKING:
+    from learning.sounds import SoundCorpus
 
 RewardKind = Literal["var", "sparse", "shaped"]
 # Raised when what a reward pays changes; stored with every Table I run and part of its recipe, so runs before
@@ -265,8 +268,14 @@ def corpus_bank(
     """The clips of these splits with the features of `front_end` (the VAR's: `var.front_end`)."""
     from learning.sounds import load_corpus
 
-    corpus = load_corpus(name, data_dir, front_end=front_end).subset(splits)
-    return ClipBank(np.asarray(corpus.features, dtype=np.float32), np.asarray(corpus.intent, dtype=np.int64))
+    return clip_bank_of(load_corpus(name, data_dir, front_end=front_end).subset(splits))
+
+
+def clip_bank_of(corpus: "SoundCorpus", rows: list[int] | None = None) -> ClipBank:
+    """A corpus's clips (or only these rows of it) as a bank of goal clips."""
+    picked = slice(None) if rows is None else rows
+    features, intents = corpus.features[picked], corpus.intent[picked]
+    return ClipBank(np.asarray(features, dtype=np.float32), np.asarray(intents, dtype=np.int64))
 
 
 def clip_bank_from_paths(specs: list[str], front_end: str = "mfcc") -> ClipBank:
