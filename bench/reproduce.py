@@ -15,8 +15,9 @@ as the paper) gives a share S of the episodes to targets whose recent mean retur
 intrinsic for VAR) is furthest below the best target's. --target-intents 0 trains on target 0 only: the
 diagnostic that showed "zero" alone is learnable; such runs go under "diagnostics", not into the table.
 --experiment records a run under "experiments", beside its row, so trying a PPO variant (--ent-coef,
---goal-match, --reward-against-others, --reward-temperature) never replaces the row's result; its curve
-still joins the row's figure.
+--goal-match, --reward-against-others, --reward-temperature, --contact) never replaces the row's result; its
+curve still joins the row's figure. --contact slide trains and evaluates TurtleBot rows in the arena where a
+blocked robot glides along what it meets instead of standing still (sim.turtlebot_arena).
 
 `bench/results/reproduce.json` keeps one record per row: status (complete / partial), env steps, wall time,
 steps/s, labels used (counted as the paper does), success per unheard tier and per intent, where each
@@ -121,6 +122,12 @@ def parse_arguments() -> argparse.Namespace:
         type=float,
         default=None,
         help="pay exp((match - 1)/T) instead of the plain VAR match (experimental)",
+    )
+    parser.add_argument(
+        "--contact",
+        choices=["stop", "slide"],
+        default=None,
+        help="TurtleBot: a blocked robot stands still (stop, the world's own) or glides along what it meets",
     )
     parser.add_argument("--episodes-per-intent", type=int, default=50)
     parser.add_argument(
@@ -295,7 +302,7 @@ def run_row(key: str, args: argparse.Namespace) -> dict:
             goals.embed(var)
         result = evaluate(policy, var, goals, world, config.image_size, split=split,
                           episodes_per_intent=args.episodes_per_intent, seed=2023,
-                          domain=world_room(args.room))  # fmt: skip
+                          domain=world_room(args.room), world_options=config.world_options)  # fmt: skip
         evaluations[split] = result.to_dict()
         in_room = "" if args.room == "training" else f"-{args.room}"
         # every episode, for failure analysis
@@ -371,6 +378,7 @@ def optional_overrides(args: argparse.Namespace) -> dict:
         "goal_match": args.goal_match,
         "reward_against_others": args.reward_against_others,
         "reward_temperature": args.reward_temperature,
+        "contact": args.contact,
     }
     return {name: value for name, value in given.items() if value is not None}
 

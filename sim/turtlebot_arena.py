@@ -4,9 +4,12 @@ A 2 m × 2 m walled arena holds four primitive objects at random, non-overlappin
 world only through a forward camera on its top deck and knows its odometry (x, y, sin θ, cos θ).
 
 How the robot moves: kinematically. Each step integrates the unicycle model (forward speed, turn rate) over
-`CONTROL_PERIOD_S` in `SUBSTEPS` slices and rejects any slice whose translation would make the Kobuki's
-footprint (a circle of `ROBOT_RADIUS_M`) touch a wall or an object; turning in place is always allowed, as it
-is for the real round robot. This is exact, deterministic and much faster than simulating wheel contacts, and
+`CONTROL_PERIOD_S` in `SUBSTEPS` slices. A slice whose translation would make the Kobuki's footprint (a circle
+of `ROBOT_RADIUS_M`) touch a wall or an object is blocked; turning in place is always allowed, as it is for
+the real round robot. What a blocked slice does is the world's `contact` rule: "stop" (the default) drops its
+translation, so a robot driving into something at any angle stands still; "slide" keeps the part of it along
+the obstacle's surface, as the round bumper glides along a wall or an object it meets at an angle (head-on it
+still stops). This is exact, deterministic and much faster than simulating wheel contacts, and
 the policy only ever commands base velocities anyway. PyBullet holds the scene (the TurtleBot 2 URDF follows
 the odometry pose) and renders the onboard camera with its tiny renderer.
 
@@ -68,6 +71,7 @@ HEARD_RIVAL_RATIO = 0.5  # a second object at least half as large (in pixels) ma
 START_CLEARANCE_M = 0.4  # the robot starts out of reach of every object
 OBJECT_GAP_M = 2 * ROBOT_RADIUS_M + 0.1  # room for the robot to pass between any two objects
 LAYOUT_ATTEMPTS = 1000
+CONTACT_RULES = ("stop", "slide")
 
 DEFAULT_FLOOR_RGB = (0.72, 0.68, 0.62)
 WALL_RGB = (0.9, 0.9, 0.86)
@@ -150,7 +154,8 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
 
     Observation: {"image": uint8 (image_size, image_size, 3), "state": float32 (x, y, sin θ, cos θ)}.
     Info: intent, heard (the object filling the view up close, or None), success, in_reach (the success
-    condition this step), hold_steps, blocked (a wall or object stopped the robot), target_clearance (m),
+    condition this step), hold_steps, blocked (a wall or object stopped the robot, or made it slide: see
+    `contact`), target_clearance (m),
     target_bearing (rad).
     """
 
@@ -168,6 +173,7 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
         domain: DomainShift | RoomRanges | None = None,
         max_steps: int | None = None,
         render_mode: str | None = None,
+        contact: str = "stop",
     ) -> None:
         if not isinstance(image_size, int) or not 16 <= image_size <= 512:
             raise ValueError(f"image_size must be an int between 16 and 512 pixels, got {image_size!r}")
@@ -175,10 +181,13 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
             raise ValueError(f"success_rule must be 'hold' or 'final', got {success_rule!r}")
         if max_steps is not None and (not isinstance(max_steps, int) or max_steps < 1):
             raise ValueError(f"max_steps must be a positive int or None, got {max_steps!r}")
+        if contact not in CONTACT_RULES:
+            raise ValueError(f"contact must be one of {CONTACT_RULES}, got {contact!r}")
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.image_size = image_size
         self.success_rule = success_rule
+        self.contact = contact
         self.domain, self.room_ranges = room_and_ranges(domain)  # ranges: a new room every reset
         self.max_steps = max_steps or DEFAULT_MAX_STEPS
         self.render_mode = render_mode
@@ -437,9 +446,7 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
         raise RuntimeError("could not place the objects and the robot in the arena; this is a bug")
 
     def _collides(self, xy: np.ndarray) -> bool:
-        if wall_clearance(xy)[0] < ROBOT_RADIUS_M:
-            return True
-        return any(obj.clearance(xy)[0] < ROBOT_RADIUS_M for obj in self._objects)
+        return bool(self._clearance(np.atleast_2d(xy))[0] < ROBOT_RADIUS_M)
 
     def _drive(self, speed: float, turn: float) -> bool:
         """Integrate the unicycle model over one control period; return whether something stopped it."""
@@ -452,13 +459,38 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
                 [x + speed * dt * math.cos(mid_heading), y + speed * dt * math.sin(mid_heading)]
             )
             theta = wrap_angle(theta + turn * dt)
-            if speed != 0.0 and self._collides(candidate):
-                blocked = True
-            else:
+            if speed == 0.0 or not self._collides(candidate):
                 x, y = candidate
+                continue
+            blocked = True
+            if self.contact == "slide":
+                x, y = self._slide(np.array([x, y]), candidate)
         self._pose = np.array([x, y, theta])
         self._sync_robot_body()
         return blocked
+
+    def _slide(self, here: np.ndarray, blocked_at: np.ndarray) -> np.ndarray:
+        """Where a blocked slice ends under the "slide" rule: its motion less the part into the nearest
+        obstacle; `here` if even that would touch something (a corner between two obstacles)."""
+        motion = blocked_at - here
+        normal = self._surface_normal(here)
+        along = motion - min(float(motion @ normal), 0.0) * normal
+        slid = here + along
+        return here if self._collides(slid) else slid
+
+    def _surface_normal(self, xy: np.ndarray) -> np.ndarray:
+        """Unit vector pointing away from the nearest wall or object at `xy`: the gradient of the clearance,
+        by central differences (one formula for walls, round objects and the cube's edges and corners)."""
+        step = 1e-5
+        offsets = np.array([[step, 0.0], [-step, 0.0], [0.0, step], [0.0, -step]])
+        clearance = self._clearance(xy + offsets)
+        gradient = np.array([clearance[0] - clearance[1], clearance[2] - clearance[3]])
+        norm = float(np.linalg.norm(gradient))
+        return gradient / norm if norm > 0.0 else gradient
+
+    def _clearance(self, points: np.ndarray) -> np.ndarray:
+        """Distance from each point (N, 2) to the nearest wall or object footprint."""
+        return np.min([wall_clearance(points), *[obj.clearance(points) for obj in self._objects]], axis=0)
 
     def _sync_robot_body(self) -> None:
         x, y, theta = self._pose
@@ -481,12 +513,16 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
         ahead = abs(self.object_bearing(self._intent)) <= math.radians(SUCCESS_BEARING_DEG)
         return bool(near and ahead)
 
-    def _heard(self) -> int | None:
-        """The single object that dominates the camera view at close range, else None."""
+    def object_pixel_shares(self) -> list[float]:
+        """Share of the last camera view's pixels that shows each object, in `OBJECTS` order."""
         assert self._last_seg is not None
         ids, counts = np.unique(self._last_seg, return_counts=True)
         pixels = dict(zip(ids.tolist(), counts.tolist(), strict=True))
-        shares = [pixels.get(obj.body_id, 0) / self._last_seg.size for obj in self._objects]
+        return [pixels.get(obj.body_id, 0) / self._last_seg.size for obj in self._objects]
+
+    def _heard(self) -> int | None:
+        """The single object that dominates the camera view at close range, else None."""
+        shares = self.object_pixel_shares()
         largest = int(np.argmax(shares))
         dominates = (
             shares[largest] >= HEARD_MIN_PIXEL_SHARE

@@ -591,6 +591,7 @@ def evaluate_in_rooms(
                 policy, var, goals, config.world, config.image_size, split=split,
                 episodes_per_intent=episodes_per_intent, seed=seed, success_rule=config.success_rule,
                 max_steps=config.max_episode_steps, domain=world_room(room), progress=progress,
+                world_options=config.world_options,
             )  # fmt: skip
             cell = {
                 "success_rate": result.success_rate,

@@ -104,10 +104,10 @@ def simulate(
     """The evaluation protocol's episodes (`learning.rl.evaluate`) of the policy at `policy_path`, seeing
     through `var`, with `goals` (embedded by `var`) naming `intents`, in `room` (None: the training room)."""
     from learning.rl.evaluate import evaluate
-    from learning.rl.ppo import load_policy
+    from learning.rl.ppo import PPOConfig, load_policy
 
     policy, payload = load_policy(policy_path)
-    config = payload["config"]
+    config = PPOConfig.from_dict(payload["config"])
     return evaluate(
         policy,
         var,
@@ -118,8 +118,9 @@ def simulate(
         episodes_per_intent=episodes_per_intent,
         seed=seed,
         num_envs=min(num_envs, len(intents) * episodes_per_intent),
-        success_rule=config.get("success_rule"),
-        max_steps=config.get("max_episode_steps"),
+        success_rule=config.success_rule,
+        max_steps=config.max_episode_steps,
+        world_options=config.world_options,
         domain=room,
         progress=False,
         intents=intents,

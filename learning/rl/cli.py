@@ -274,6 +274,7 @@ def evaluate_command(
             model, frozen, goals, config.world, config.image_size, split=split,
             episodes_per_intent=episodes_per_intent, seed=seed, success_rule=config.success_rule,
             max_steps=config.max_episode_steps, domain=world_room(room), gif_path=gif,
+            world_options=config.world_options,
         )  # fmt: skip
     except (ValueError, FileNotFoundError) as error:
         _fail(str(error))

@@ -80,8 +80,10 @@ class EnvGroups:
         max_steps: int | None,
         context: str,
         domains: list[Any] | None = None,
+        world_options: dict[str, Any] | None = None,
     ) -> None:
-        """`domains`: each environment's room as its world takes it (None: all in the training room)."""
+        """`domains`: each environment's room as its world takes it (None: all in the training room);
+        `world_options`: further keyword arguments of every world (`PPOConfig.world_options`)."""
         size = num_envs // groups
         domains = domains or [None] * num_envs
         self.num_envs = num_envs
@@ -97,6 +99,7 @@ class EnvGroups:
                 max_steps,
                 domains=domains[group],
                 context=context,
+                world_options=world_options,
             )
             for group in self.slices
         ]

@@ -92,7 +92,10 @@ def evaluate(
     gif_episodes: int = 4,
     progress: bool = True,
     intents: Sequence[int] | None = None,
+    world_options: dict[str, Any] | None = None,
 ) -> EvalResult:
+    """`world_options`: further keyword arguments of the world, as the policy was trained with them
+    (`PPOConfig.world_options`)."""
     from tqdm.auto import tqdm
 
     if not goals.has_intents:
@@ -104,7 +107,7 @@ def evaluate(
     shares = deal(schedule, num_envs)
     envs = make_vector_env(
         world_id(world), num_envs, image_size, success_rule, max_steps, schedules=shares,
-        domains=[domain] * num_envs,
+        domains=[domain] * num_envs, world_options=world_options,
     )  # fmt: skip
     results: list[EpisodeResult] = []
     frames: list[np.ndarray] = []

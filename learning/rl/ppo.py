@@ -98,6 +98,8 @@ class PPOConfig:
     policy_view_shift: int = 0  # and shifts its view by up to ± this many pixels (learning.rl.view_changes)
     success_rule: str | None = None  # None: the world's own rule (Kuka "final", TurtleBot "hold")
     max_episode_steps: int | None = None  # None: the world's own T (100)
+    # TurtleBot: what a blocked robot does (sim.turtlebot_arena: "stop" or "slide"; None: the world's own)
+    contact: str | None = None
     # core.rooms.world_room: "training", "randomised" (a room per episode), a preset, or DomainShift fields
     room: str | dict[str, Any] = "training"
     # environments that practise in `replay_room` instead (a household's fine-tune keeps its base's rooms)
@@ -131,6 +133,11 @@ class PPOConfig:
     success_window: int = 100  # episodes in the "recent success rate"
 
     @property
+    def world_options(self) -> dict[str, Any]:
+        """The world's own settings this run changes, as keyword arguments of the world."""
+        return {"contact": self.contact} if self.contact is not None else {}
+
+    @property
     def batch_size(self) -> int:
         return self.num_envs * self.num_steps
 
@@ -140,6 +147,13 @@ class PPOConfig:
 
     def validate(self) -> None:
         world_room(self.room)  # refuses a room it cannot name, saying which exist
+        from sim.turtlebot_arena import CONTACT_RULES
+
+        if self.contact is not None and (self.world != "turtlebot" or self.contact not in CONTACT_RULES):
+            raise ValueError(
+                f"contact is a TurtleBot setting, one of {CONTACT_RULES}: got {self.contact!r} for "
+                f"{self.world}"
+            )
         world_room(self.replay_room)
         if not 0.0 <= self.policy_colour_jitter < 1.0:
             raise ValueError(f"policy_colour_jitter must be in [0, 1), got {self.policy_colour_jitter}")
@@ -304,6 +318,7 @@ class PPOTrainer:
             c.world, c.num_envs, c.env_groups, c.image_size, c.success_rule, c.max_episode_steps,
             c.env_context,
             domains=env_rooms(c.num_envs, world_room(c.room), c.replay_envs, world_room(c.replay_room)),
+            world_options=c.world_options,
         )  # fmt: skip
         plan = core_plan(os.cpu_count() or 1, c.num_envs, self.device, c.torch_threads)
         spread_processes(plan, self.envs.worker_processes())

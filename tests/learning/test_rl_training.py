@@ -481,6 +481,27 @@ def test_a_run_keeps_at_least_one_environment_in_its_own_room() -> None:
         tiny_config(replay_envs=2).validate()
 
 
+def test_a_turtlebot_run_trains_its_worlds_with_the_contact_rule_it_names(
+    tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
+) -> None:
+    config = tiny_config(world="turtlebot", num_envs=2, env_groups=2, contact="slide")
+    trainer = make(config, tmp_path, var_checkpoint, goal_clips)
+    try:
+        trainer.reset_envs()
+        contacts = [rule for envs in trainer.envs.vector_envs for rule in envs.get_attr("contact")]
+    finally:
+        trainer.close()
+    assert contacts == ["slide", "slide"]
+    assert PPOConfig.from_dict({"world": "turtlebot"}).world_options == {}  # older runs: the world's own rule
+
+
+def test_a_contact_rule_is_refused_for_a_world_that_has_none() -> None:
+    with pytest.raises(ValueError, match="contact is a TurtleBot setting"):
+        tiny_config(world="kuka", contact="slide").validate()
+    with pytest.raises(ValueError, match="one of \\('stop', 'slide'\\)"):
+        tiny_config(world="turtlebot", contact="bounce").validate()
+
+
 def test_replay_environments_are_spread_over_the_groups_and_never_the_watched_one() -> None:
     assert env_rooms(8, "own", 2, "base") == ["own"] * 3 + ["base"] + ["own"] * 3 + ["base"]
     assert env_rooms(8, "own", 0, "base") == ["own"] * 8

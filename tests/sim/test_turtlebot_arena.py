@@ -130,6 +130,47 @@ def test_walls_and_objects_stop_the_robot(env):
     assert info["blocked"] and max(abs(x), abs(y)) <= ARENA_HALF_M - ROBOT_RADIUS_M + 1e-6
 
 
+def drive_into_the_wall_at_45_degrees(arena: TurtleBotArenaEnv) -> list[np.ndarray]:
+    """Full speed towards the +y wall at 45°, from 5 cm short of touching it; the robot's (x, y) each step."""
+    arena.reset(seed=1)
+    start_y = ARENA_HALF_M - ROBOT_RADIUS_M - 0.05
+    arena.arrange((-0.5, start_y, math.pi / 4), [(0.6, -0.6), (-0.6, -0.6), (0.0, -0.7), (-0.7, 0.0)])
+    return [arena.step(np.array([1.0, 0.0], dtype=np.float32))[0]["state"][:2] for _ in range(10)]
+
+
+def test_a_robot_blocked_at_an_angle_stands_still_under_the_stop_rule(env):
+    path = drive_into_the_wall_at_45_degrees(env)
+    assert path[-1] == pytest.approx(path[-2], abs=1e-9)
+
+
+def test_a_robot_blocked_at_an_angle_slides_along_the_wall_under_the_slide_rule():
+    arena = make_env(contact="slide")
+    path = drive_into_the_wall_at_45_degrees(arena)
+    x, y = path[-1]
+    # 10 steps of 5 cm: the first ~7 cm along the diagonal, the rest along the wall at cos 45° of full speed,
+    # within one integration slice (1.25 cm) of touching it
+    assert ARENA_HALF_M - ROBOT_RADIUS_M - 0.0125 <= y <= ARENA_HALF_M - ROBOT_RADIUS_M
+    assert x - path[-2][0] == pytest.approx(0.25 * CONTROL_PERIOD_S * math.cos(math.pi / 4), abs=1e-3)
+    arena.step(np.array([1.0, 0.0], dtype=np.float32))
+    arena.arrange((0.0, 0.5, math.pi / 2))  # head-on into the wall: nothing to slide along
+    for _ in range(10):
+        observation, *_, info = arena.step(np.array([1.0, 0.0], dtype=np.float32))
+    assert info["blocked"] and observation["state"][0] == pytest.approx(0.0, abs=1e-9)
+    arena.close()
+
+
+def test_a_robot_sliding_round_an_object_keeps_its_distance():
+    arena = make_env(contact="slide")
+    arena.reset(seed=1)
+    arena.arrange((0.1, 0.05, 0.0), scene_with(1))  # the sphere ahead, a little to the right of the heading
+    for _ in range(15):
+        *_, info = arena.step(np.array([1.0, 0.0], dtype=np.float32))
+        assert arena.object_clearance(1) >= -1e-9
+    # it has slid round the sphere's side instead of standing still in front of it
+    assert info["blocked"] and arena.object_bearing(1) < -math.radians(30)
+    arena.close()
+
+
 @pytest.mark.parametrize("target", range(4))
 def test_heard_names_the_object_the_robot_faces_from_40_cm(env, target):
     env.reset(seed=2)
@@ -247,6 +288,8 @@ def test_wandering_shows_single_objects_up_close_often(env):
 def test_bad_arguments_say_what_is_wrong():
     with pytest.raises(ValueError, match="success_rule"):
         TurtleBotArenaEnv(success_rule="sometimes")
+    with pytest.raises(ValueError, match="contact must be one of"):
+        TurtleBotArenaEnv(contact="bounce")
     arena = make_env()
     with pytest.raises(ValueError, match="intent"):
         arena.reset(seed=0, options={"intent": 4})
