@@ -1,0 +1,53 @@
+"""bench/blocked_tries.py: a failed TurtleBot try is sorted by how it ended, read off the real arena."""
+
+import math
+
+import blocked_tries as bench
+import numpy as np
+import pytest
+
+from sim.turtlebot_arena import TurtleBotArenaEnv
+
+FORWARD = np.array([1.0, 0.0], dtype=np.float32)
+CUBE, SPHERE = 0, 1
+# the sphere straight ahead of a robot at the origin facing +x, the cube beyond it, the others behind
+SPHERE_BEFORE_THE_CUBE = [(0.75, 0.0), (0.35, 0.0), (-0.7, 0.7), (-0.7, -0.7)]
+
+
+def drive(contact: str, target: int, heading: float, steps: int = 40) -> list[dict]:
+    arena = TurtleBotArenaEnv(image_size=32, contact=contact)
+    try:
+        arena.reset(seed=0, options={"intent": target})
+        arena.arrange((0.0, 0.0, heading), SPHERE_BEFORE_THE_CUBE)
+        return [bench.where_the_try_is(arena, arena.step(FORWARD)[0], target) for _ in range(steps)]
+    finally:
+        arena.close()
+
+
+def test_a_robot_driving_on_into_another_object_is_pressed_against_it() -> None:
+    steps = drive("stop", CUBE, heading=0.0)
+    assert steps[-1]["target_share"] > 0.0, "the cube stays in view past the sphere's sides"
+    assert bench.classify(steps, success=False) == "pressed against something else"
+
+
+def test_a_robot_that_never_faced_its_object_never_saw_it() -> None:
+    steps = drive("stop", CUBE, heading=math.pi, steps=10)  # away from both, towards the empty -x side
+    assert bench.classify(steps, success=False) == "never saw its object"
+
+
+def test_a_robot_at_its_object_but_not_facing_it_is_off_centre() -> None:
+    steps = drive("stop", SPHERE, heading=0.0)
+    steps[-1] = {**steps[-1], "target_bearing_deg": 35.0}  # the same place, turned away from the sphere
+    assert bench.classify(steps, success=False) == "at its object, off-centre"
+
+
+def test_a_success_has_no_ending_and_a_moving_robot_is_elsewhere() -> None:
+    steps = drive("stop", CUBE, heading=0.0, steps=3)  # still driving towards the sphere
+    assert bench.classify(steps, success=True) is None
+    assert bench.classify(steps, success=False) == "elsewhere"
+
+
+def test_a_run_of_another_world_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    (tmp_path / "config.json").write_text('{"world": "kuka"}')
+    with pytest.raises(SystemExit, match="kuka run; this bench replays TurtleBot runs"):
+        bench.replay(tmp_path, "unheard-easy", "stop")
