@@ -155,8 +155,7 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
     Observation: {"image": uint8 (image_size, image_size, 3), "state": float32 (x, y, sin θ, cos θ)}.
     Info: intent, heard (the object filling the view up close, or None), success, in_reach (the success
     condition this step), hold_steps, blocked (a wall or object stopped the robot, or made it slide: see
-    `contact`), target_clearance (m),
-    target_bearing (rad).
+    `contact`), target_clearance (m), target_bearing (rad).
     """
 
     metadata: ClassVar[dict[str, Any]] = {
