@@ -39,6 +39,7 @@ RESULTS = Path(__file__).resolve().parent / "results" / "blocked_tries.json"
 STILL_STEPS = 20  # a try that has not moved for this many steps at its end has stopped for good
 TOUCHING_M = 0.02  # within one integration slice (1.25 cm) of an obstacle, with margin
 ENDINGS = ("at its object, off-centre", "pressed against something else", "never saw its object", "elsewhere")
+SHORT_NAMES = ("off-centre", "pressed", "never saw", "elsewhere")  # the table's column headings
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -165,7 +166,7 @@ def measure(args: argparse.Namespace) -> dict:
 
 def table(result: dict) -> Table:
     view = Table(title=f"TurtleBot tries replayed ({result['split']}): success, how the failed ones ended")
-    for column in ("run", "trained / replayed contact", "success", "agrees", *ENDINGS):
+    for column in ("run", "contact: trained / replayed", "success", "as stored", *SHORT_NAMES):
         view.add_column(column, justify="right")
     for cell in result["cells"]:
         ended = cell["failed_by_ending"]
