@@ -81,6 +81,13 @@ def train(
             "nothing (experimental; Table I's sharpened recipe uses 0.25)."
         ),
     ] = None,
+    contact: Annotated[
+        str | None,
+        typer.Option(
+            help="TurtleBot: a blocked robot stands still (stop, the world's own) or glides along what it "
+            "meets (slide); sim.turtlebot_arena."
+        ),
+    ] = None,
     policy_colour_jitter: Annotated[
         float,
         typer.Option(
@@ -146,6 +153,7 @@ def train(
         room=room,
         goal_match=goal_match,
         reward_temperature=reward_temperature,
+        contact=contact,
         policy_colour_jitter=policy_colour_jitter,
         policy_hue_turn=policy_hue_turn,
         policy_view_shift=policy_view_shift,

@@ -354,6 +354,19 @@ def test_train_command_refuses_a_reward_temperature_without_the_var_reward(
     assert not (tmp_path / "checkpoint.pt").exists()
 
 
+def test_train_command_refuses_a_contact_rule_for_an_arm(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from learning.rl.cli import app
+
+    result = CliRunner().invoke(
+        app, ["train", "--method", "sparse", "--contact", "slide", "--run-dir", str(tmp_path)]
+    )
+    assert result.exit_code == 1
+    assert "contact is a TurtleBot setting" in result.output and "for kuka" in result.output
+    assert not (tmp_path / "checkpoint.pt").exists()
+
+
 def test_rsi_baseline_trains_on_the_turtlebot_with_auxiliary_losses_and_counts_its_labels(
     tmp_path: Path, goal_clips: ClipBank
 ) -> None:
