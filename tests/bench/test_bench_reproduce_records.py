@@ -198,6 +198,7 @@ def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_rec
         "room": "training",
         "reward_against_others": False,
         "policy_colour_jitter": 0.0,
+        "contact": "stop",
     }
     elsewhere = run_record("unseen-room", 1, 0.1)
     elsewhere["config"] |= {"room": "unseen_room"}
@@ -207,9 +208,11 @@ def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_rec
     against_others["config"] |= {"reward_against_others": True}
     jittered = run_record("colour-jitter", 6, 0.9)
     jittered["config"] |= {"policy_colour_jitter": 0.3}
+    sliding = run_record("slide", 7, 0.9)
+    sliding["config"] |= {"contact": "slide"}
     results = {
         "experiments": {"before": before},
-        "earlier_runs": [after, elsewhere, with_replay, against_others, jittered],
+        "earlier_runs": [after, elsewhere, with_replay, against_others, jittered, sliding],
     }
     [line] = table_lines(results)
     assert [s["tag"] for s in line["seeds"]] == ["before", "after"]
