@@ -10,6 +10,9 @@ class that fits it:
 - at its object, off-centre: it ended within reach of its object (`SUCCESS_CLEARANCE_M`) but not facing it;
 - pressed against something else: it stood still for its last `STILL_STEPS` steps, touching another object
   or a wall (the "stop" rule drops a blocked move, so a robot driving on into an obstacle stays put);
+- stopped short of its object: it stood still for its last `STILL_STEPS` steps facing its object (within the
+  success bearing), beyond reach but close enough for the object to fill the view (`HEARD_MAX_CLEARANCE_M`,
+  the distance at which the VAR's training views name it);
 - never saw its object: not one pixel of it in any view;
 - elsewhere: anything else (it saw its object and ended away from it, still moving).
 
@@ -38,8 +41,14 @@ from rich.table import Table
 RESULTS = Path(__file__).resolve().parent / "results" / "blocked_tries.json"
 STILL_STEPS = 20  # a try that has not moved for this many steps at its end has stopped for good
 TOUCHING_M = 0.02  # within one integration slice (1.25 cm) of an obstacle, with margin
-ENDINGS = ("at its object, off-centre", "pressed against something else", "never saw its object", "elsewhere")
-SHORT_NAMES = ("off-centre", "pressed", "never saw", "elsewhere")  # the table's column headings
+ENDINGS = (
+    "at its object, off-centre",
+    "pressed against something else",
+    "stopped short of its object",
+    "never saw its object",
+    "elsewhere",
+)
+SHORT_NAMES = ("off-centre", "pressed", "stopped short", "never saw", "elsewhere")  # the table's headings
 
 
 def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
@@ -56,7 +65,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def classify(steps: list[dict[str, Any]], success: bool) -> str | None:
     """How a try ended (one of ENDINGS), or None for a success. `steps`: one dict per step after it, with the
     robot's xy, its object's pixel share, clearance and bearing, and its clearance to everything else."""
-    from sim.turtlebot_arena import SUCCESS_BEARING_DEG, SUCCESS_CLEARANCE_M
+    from sim.turtlebot_arena import HEARD_MAX_CLEARANCE_M, SUCCESS_BEARING_DEG, SUCCESS_CLEARANCE_M
 
     if success:
         return None
@@ -68,9 +77,12 @@ def classify(steps: list[dict[str, Any]], success: bool) -> str | None:
     still = len(steps) >= STILL_STEPS and all(math.dist(xy, tail[-1]) < 1e-6 for xy in tail)
     if still and last["other_clearance_m"] < TOUCHING_M:
         return ENDINGS[1]
-    if not any(step["target_share"] > 0.0 for step in steps):
+    facing = abs(last["target_bearing_deg"]) <= SUCCESS_BEARING_DEG
+    if still and facing and last["target_clearance_m"] <= HEARD_MAX_CLEARANCE_M:
         return ENDINGS[2]
-    return ENDINGS[3]
+    if not any(step["target_share"] > 0.0 for step in steps):
+        return ENDINGS[3]
+    return ENDINGS[4]
 
 
 def where_the_try_is(env: Any, obs: dict, target: int) -> dict[str, Any]:
@@ -175,7 +187,7 @@ def table(result: dict) -> Table:
             f"{cell['trained_contact']} / {cell['contact']}",
             f"{cell['success_rate']:.1%}",
             f"{cell['agrees_with_stored']} of {cell['tries']}",
-            *(str(ended[ending]) for ending in ENDINGS),
+            *(str(ended.get(ending, "–")) for ending in ENDINGS),  # "–": measured before that class existed
         )
     return view
 

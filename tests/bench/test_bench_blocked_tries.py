@@ -6,9 +6,10 @@ import blocked_tries as bench
 import numpy as np
 import pytest
 
-from sim.turtlebot_arena import TurtleBotArenaEnv
+from sim.turtlebot_arena import OBJECTS, ROBOT_RADIUS_M, STAND_STILL_ACTION, TurtleBotArenaEnv
 
 FORWARD = np.array([1.0, 0.0], dtype=np.float32)
+STAND_STILL = STAND_STILL_ACTION.astype(np.float32)
 CUBE, SPHERE = 0, 1
 # the sphere straight ahead of a robot at the origin facing +x, the cube beyond it, the others behind
 SPHERE_BEFORE_THE_CUBE = [(0.75, 0.0), (0.35, 0.0), (-0.7, 0.7), (-0.7, -0.7)]
@@ -28,6 +29,19 @@ def test_a_robot_driving_on_into_another_object_is_pressed_against_it() -> None:
     steps = drive("stop", CUBE, heading=0.0)
     assert steps[-1]["target_share"] > 0.0, "the cube stays in view past the sphere's sides"
     assert bench.classify(steps, success=False) == "pressed against something else"
+
+
+def test_a_robot_standing_still_facing_its_object_out_of_reach_stopped_short() -> None:
+    arena = TurtleBotArenaEnv(image_size=32)
+    try:
+        arena.reset(seed=0, options={"intent": SPHERE})
+        sphere_face = SPHERE_BEFORE_THE_CUBE[SPHERE][0] - OBJECTS[SPHERE].footprint_radius_m
+        arena.arrange((sphere_face - ROBOT_RADIUS_M - 0.45, 0.0, 0.0), SPHERE_BEFORE_THE_CUBE)
+        steps = [bench.where_the_try_is(arena, arena.step(STAND_STILL)[0], SPHERE) for _ in range(25)]
+    finally:
+        arena.close()
+    assert steps[-1]["target_clearance_m"] == pytest.approx(0.45, abs=1e-6)
+    assert bench.classify(steps, success=False) == "stopped short of its object"
 
 
 def test_a_robot_that_never_faced_its_object_never_saw_it() -> None:
