@@ -144,12 +144,24 @@ def replay(run: Path, split: str, contact: str) -> dict[str, Any]:
                     steps.append(where_the_try_is(env, obs, target))
             success = bool(info["success"])
             tries.append({"intent": target, "success": success, "stored_success": episode["success"],
-                          "ended": classify(steps, success)})  # fmt: skip
+                          "ended": classify(steps, success),
+                          "final_clearance_m": steps[-1]["target_clearance_m"]})  # fmt: skip
     finally:
         env.close()
     where = {"run": relative_path(run), "split": split, "contact": contact,
              "trained_contact": config.contact or "stop"}  # fmt: skip
     return summarise(tries, env.intent_names) | where
+
+
+def clearance_range(tries: list[dict[str, Any]], ending: str) -> dict[str, float] | None:
+    """Smallest, median and largest final clearance to its object of the tries that ended so (None: none)."""
+    import statistics
+
+    ended = [t["final_clearance_m"] for t in tries if t["ended"] == ending]
+    if not ended:
+        return None
+    summary = {"min": min(ended), "median": statistics.median(ended), "max": max(ended)}
+    return {name: round(value, 3) for name, value in summary.items()}
 
 
 def summarise(tries: list[dict[str, Any]], names: list[str]) -> dict[str, Any]:
@@ -166,6 +178,8 @@ def summarise(tries: list[dict[str, Any]], names: list[str]) -> dict[str, Any]:
         "success_rate": sum(t["success"] for t in tries) / len(tries),
         "agrees_with_stored": sum(t["success"] == t["stored_success"] for t in tries),
         "failed_by_ending": {ending: sum(t["ended"] == ending for t in tries) for ending in ENDINGS},
+        # how far from its object the robot ended, over the failed tries of each ending
+        "final_clearance_m_by_ending": {ending: clearance_range(tries, ending) for ending in ENDINGS},
         "by_intent": by_intent,
     }
 

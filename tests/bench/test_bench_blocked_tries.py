@@ -65,3 +65,22 @@ def test_a_run_of_another_world_is_refused(tmp_path) -> None:  # type: ignore[no
     (tmp_path / "config.json").write_text('{"world": "kuka"}')
     with pytest.raises(SystemExit, match="kuka run; this bench replays TurtleBot runs"):
         bench.replay(tmp_path, "unheard-easy", "stop")
+
+
+def test_the_summary_counts_endings_per_command_and_gives_their_final_clearances() -> None:
+    tries = [
+        {"intent": 0, "success": True, "stored_success": True, "ended": None, "final_clearance_m": 0.1},
+        {"intent": 0, "success": False, "stored_success": False, "ended": "stopped short of its object",
+         "final_clearance_m": 0.4},
+        {"intent": 1, "success": False, "stored_success": True, "ended": "stopped short of its object",
+         "final_clearance_m": 0.5},
+    ]  # fmt: skip
+    summary = bench.summarise(tries, ["cube", "sphere"])
+    assert summary["success_rate"] == pytest.approx(1 / 3) and summary["agrees_with_stored"] == 2
+    assert summary["by_intent"]["cube"]["stopped short of its object"] == 1
+    assert summary["final_clearance_m_by_ending"]["stopped short of its object"] == {
+        "min": 0.4,
+        "median": 0.45,
+        "max": 0.5,
+    }
+    assert summary["final_clearance_m_by_ending"]["elsewhere"] is None
