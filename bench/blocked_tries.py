@@ -40,6 +40,9 @@ from rich.table import Table
 
 RESULTS = Path(__file__).resolve().parent / "results" / "blocked_tries.json"
 STILL_STEPS = 20  # a try that has not moved for this many steps at its end has stopped for good
+STILL_M = (
+    0.01  # "not moved": every position of those steps within 1 cm of the last (a standing policy creeps)
+)
 TOUCHING_M = 0.02  # within one integration slice (1.25 cm) of an obstacle, with margin
 ENDINGS = (
     "at its object, off-centre",
@@ -74,7 +77,7 @@ def classify(steps: list[dict[str, Any]], success: bool) -> str | None:
     if within_reach and abs(last["target_bearing_deg"]) > SUCCESS_BEARING_DEG:
         return ENDINGS[0]
     tail = [step["xy"] for step in steps[-STILL_STEPS:]]
-    still = len(steps) >= STILL_STEPS and all(math.dist(xy, tail[-1]) < 1e-6 for xy in tail)
+    still = len(steps) >= STILL_STEPS and all(math.dist(xy, tail[-1]) < STILL_M for xy in tail)
     if still and last["other_clearance_m"] < TOUCHING_M:
         return ENDINGS[1]
     facing = abs(last["target_bearing_deg"]) <= SUCCESS_BEARING_DEG
@@ -187,7 +190,8 @@ def summarise(tries: list[dict[str, Any]], names: list[str]) -> dict[str, Any]:
 def measure(args: argparse.Namespace) -> dict:
     contacts = [c for c in args.contacts.split(",") if c]
     cells = [replay(run.resolve(), args.split, contact) for run in args.runs for contact in contacts]
-    return {"split": args.split, "still_steps": STILL_STEPS, "touching_m": TOUCHING_M, "cells": cells}
+    return {"split": args.split, "still_steps": STILL_STEPS, "still_m": STILL_M, "touching_m": TOUCHING_M,
+            "cells": cells}  # fmt: skip
 
 
 def table(result: dict) -> Table:

@@ -37,10 +37,14 @@ def test_a_robot_standing_still_facing_its_object_out_of_reach_stopped_short() -
         arena.reset(seed=0, options={"intent": SPHERE})
         sphere_face = SPHERE_BEFORE_THE_CUBE[SPHERE][0] - OBJECTS[SPHERE].footprint_radius_m
         arena.arrange((sphere_face - ROBOT_RADIUS_M - 0.45, 0.0, 0.0), SPHERE_BEFORE_THE_CUBE)
-        steps = [bench.where_the_try_is(arena, arena.step(STAND_STILL)[0], SPHERE) for _ in range(25)]
+        creep_back = STAND_STILL - np.array([0.002, 0.0], dtype=np.float32)  # a learnt "stop" is seldom exact
+        steps = [bench.where_the_try_is(arena, arena.step(creep_back)[0], SPHERE) for _ in range(25)]
     finally:
         arena.close()
-    assert steps[-1]["target_clearance_m"] == pytest.approx(0.45, abs=1e-6)
+    assert (
+        steps[-1]["target_clearance_m"] == pytest.approx(0.45, abs=0.01)
+        and steps[-1]["target_clearance_m"] > 0.45
+    )
     assert bench.classify(steps, success=False) == "stopped short of its object"
 
 
