@@ -28,6 +28,7 @@ Prints a table and writes bench/results/blocked_tries.json with the load average
 import argparse
 import json
 import math
+import statistics
 import sys
 from pathlib import Path
 from typing import Any
@@ -110,7 +111,7 @@ def replay(run: Path, split: str, contact: str) -> dict[str, Any]:
     import torch
     from tqdm.auto import tqdm
 
-    from learning.rl.evaluate import goal_inputs
+    from learning.rl.evaluate import encode_views, goal_inputs
     from learning.rl.frozen_var import load_frozen_var
     from learning.rl.ppo import PPOConfig, load_policy
     from learning.rl.rewards import corpus_bank
@@ -140,7 +141,7 @@ def replay(run: Path, split: str, contact: str) -> dict[str, Any]:
                 for _ in range(env.max_steps):
                     image = torch.from_numpy(obs["image"][None])
                     state = torch.from_numpy(obs["state"][None].astype(np.float32))
-                    seen = var.encode_image(image) if var is not None else torch.zeros(1, 0)
+                    seen = encode_views(var, obs["image"][None], policy.config.var_dim)
                     mean, _, hidden = policy.step(policy.view_of(image), seen, state, goal, hidden, start)
                     start = torch.zeros(1)
                     obs, _, _, _, info = env.step(mean.clamp(-1.0, 1.0).numpy()[0])
@@ -158,8 +159,6 @@ def replay(run: Path, split: str, contact: str) -> dict[str, Any]:
 
 def clearance_range(tries: list[dict[str, Any]], ending: str) -> dict[str, float] | None:
     """Smallest, median and largest final clearance to its object of the tries that ended so (None: none)."""
-    import statistics
-
     ended = [t["final_clearance_m"] for t in tries if t["ended"] == ending]
     if not ended:
         return None

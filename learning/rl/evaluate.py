@@ -125,7 +125,7 @@ def evaluate(
         bar = tqdm(total=len(schedule), unit="episode", desc=f"eval {world}", disable=not progress)
         with torch.inference_mode():
             goal_features = policy.encode_goal(goal_inputs(goals, goal_clip, config.goal_encoder))
-            var_embedding = _encode(var, obs["image"], config.var_dim)
+            var_embedding = encode_views(var, obs["image"], config.var_dim)
             while len(results) < len(schedule):
                 if gif_path is not None and episode[0] < gif_episodes and episode[0] >= 0:
                     frames.append(obs["image"][0])
@@ -156,7 +156,7 @@ def evaluate(
                 length[done], first_success[done] = 0, -1
                 start = torch.from_numpy(done.astype(np.float32))
                 episode = np.where(done, np.asarray(info["episode"]), episode)
-                var_embedding = _encode(var, obs["image"], config.var_dim)
+                var_embedding = encode_views(var, obs["image"], config.var_dim)
                 if done.any():
                     ended = np.flatnonzero(done)
                     goal_clip[ended] = _episode_goals(
@@ -219,7 +219,8 @@ def _episode_goals(
     return np.asarray(picks, dtype=np.int64)
 
 
-def _encode(var: torch.nn.Module | None, images: np.ndarray, var_dim: int) -> torch.Tensor:
+def encode_views(var: torch.nn.Module | None, images: np.ndarray, var_dim: int) -> torch.Tensor:
+    """f_I of each view, as the policy takes it (no columns for a policy that does not see the VAR)."""
     if var is None or var_dim == 0:
         return torch.zeros(len(images), 0)
     return var.encode_image(torch.from_numpy(images))
