@@ -16,8 +16,10 @@ intrinsic for VAR) is furthest below the best target's. --target-intents 0 train
 diagnostic that showed "zero" alone is learnable; such runs go under "diagnostics", not into the table.
 --experiment records a run under "experiments", beside its row, so trying a PPO variant (--ent-coef,
 --goal-match, --reward-against-others, --reward-temperature, --contact) never replaces the row's result; its
-curve still joins the row's figure. --contact slide trains and evaluates TurtleBot rows in the arena where a
-blocked robot glides along what it meets instead of standing still (sim.turtlebot_arena).
+curve still joins the row's figure. --var-heard-reach R makes the TurtleBot's VAR from views named after an
+object only within R metres of it (its own dataset and VAR). --contact slide trains and evaluates TurtleBot
+rows in the arena where a blocked robot glides along what it meets instead of standing still
+(sim.turtlebot_arena).
 
 `bench/results/reproduce.json` keeps one record per row: status (complete / partial), env steps, wall time,
 steps/s, labels used (counted as the paper does), success per unheard tier and per intent, where each
@@ -98,6 +100,13 @@ def parse_arguments() -> argparse.Namespace:
     parser.add_argument(
         "--var-room-copies", type=int, default=0, help="train the VAR with this many simulated-room copies"
     )
+    parser.add_argument(
+        "--var-heard-reach",
+        type=float,
+        default=None,
+        help="TurtleBot: collect views named after an object only within this many metres of it (a new "
+        "dataset; the world's default is 0.6, the success distance 0.35)",
+    )
     parser.add_argument("--image-size", type=int, default=None, help="default: the VAR's (96 when none)")
     parser.add_argument(
         "--policy-image-size", type=int, default=None, help="policy CNN input size (default: PPOConfig)"
@@ -175,7 +184,8 @@ def ensure_corpus(sounds: str) -> None:
 
 
 def row_dataset(world: str, args: argparse.Namespace) -> str:
-    return args.var_dataset or f"reproduce-{world}-{args.triplets}"
+    reach = f"-reach{round(args.var_heard_reach * 100)}cm" if args.var_heard_reach else ""
+    return args.var_dataset or f"reproduce-{world}-{args.triplets}{reach}"
 
 
 def ensure_dataset(world: str, sounds: str, args: argparse.Namespace) -> str:
@@ -186,8 +196,9 @@ def ensure_dataset(world: str, sounds: str, args: argparse.Namespace) -> str:
     try:
         open_dataset(dataset)
     except DatasetError:
+        reach_args = ["--heard-reach", str(args.var_heard_reach)] if args.var_heard_reach else []
         varbot("var", "collect", world, "--triplets", str(args.triplets), "--sounds", sounds,
-               "--name", dataset, "--image-size", str(args.image_size or 96))  # fmt: skip
+               "--name", dataset, "--image-size", str(args.image_size or 96), *reach_args)  # fmt: skip
     return dataset
 
 

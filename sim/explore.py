@@ -2,6 +2,7 @@
 ends for sharpening a base model's VAR (simulation only: placed with the simulator's ground truth)."""
 
 from collections.abc import Iterator
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -16,17 +17,18 @@ def random_views(
     seed: int,
     image_size: int = 96,
     domain: DomainShift | RoomRanges | None = None,
+    world_options: dict[str, Any] | None = None,
 ) -> Iterator[tuple[np.ndarray, int | None, np.ndarray]]:
     """Yield `count` views `(image, heard, state)` while the robot moves at random as the reference does.
 
     The arms' gripper target jumps to random places in the workspace; the TurtleBot wanders. Each world's env
     provides `random_view_step(rng)`, which returns what `step` returns. A new scene (block row, object
-    layout, and with `RoomRanges` a room) is drawn whenever an episode ends. The same arguments give the same
-    views.
+    layout, and with `RoomRanges` a room) is drawn whenever an episode ends. `world_options` go to the world's
+    constructor (e.g. the TurtleBot's `heard_reach_m`). The same arguments give the same views.
     """
     if count < 0:
         raise ValueError(f"count must be zero or more views, got {count}")
-    env = gym.make(world_id(world), image_size=image_size, domain=domain)
+    env = gym.make(world_id(world), image_size=image_size, domain=domain, **(world_options or {}))
     rng = np.random.default_rng(seed)
     try:
         observation, info = env.reset(seed=seed)
@@ -55,6 +57,7 @@ def block_end_views(
     across_m: float = 0.025,
     centre_share: float = 0.2,
     views_per_scene: int = 8,
+    world_options: dict[str, Any] | None = None,
 ) -> Iterator[tuple[np.ndarray, int | None, np.ndarray]]:
     """Yield `count` views `(image, heard, state)` with the gripper placed around one end of a block (arm
     worlds): a random block, `past_centre_m` from its centre along its long side (x) to either end, within
@@ -66,7 +69,7 @@ def block_end_views(
         raise ValueError(f"count must be zero or more views, got {count}")
     if not has_blocks(world):
         raise ValueError(f"the {world} world has no blocks to place the gripper around")
-    env = gym.make(world_id(world), image_size=image_size, domain=domain)
+    env = gym.make(world_id(world), image_size=image_size, domain=domain, **(world_options or {}))
     scene = env.unwrapped
     rng = np.random.default_rng(seed)
     try:

@@ -156,6 +156,10 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
     Info: intent, heard (the object filling the view up close, or None), success, in_reach (the success
     condition this step), hold_steps, blocked (a wall or object stopped the robot, or made it slide: see
     `contact`), target_clearance (m), target_bearing (rad).
+
+    `heard_reach_m` is how close an object must be for the view to be named after it (the simulated person's
+    answer, and so the VAR's positives): by default `HEARD_MAX_CLEARANCE_M`, wider than the success distance;
+    `SUCCESS_CLEARANCE_M` names only views from where the task counts as done.
     """
 
     metadata: ClassVar[dict[str, Any]] = {
@@ -173,6 +177,7 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
         max_steps: int | None = None,
         render_mode: str | None = None,
         contact: str = "stop",
+        heard_reach_m: float = HEARD_MAX_CLEARANCE_M,
     ) -> None:
         if not isinstance(image_size, int) or not 16 <= image_size <= 512:
             raise ValueError(f"image_size must be an int between 16 and 512 pixels, got {image_size!r}")
@@ -182,11 +187,17 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
             raise ValueError(f"max_steps must be a positive int or None, got {max_steps!r}")
         if contact not in CONTACT_RULES:
             raise ValueError(f"contact must be one of {CONTACT_RULES}, got {contact!r}")
+        if not isinstance(heard_reach_m, int | float) or not 0.0 < heard_reach_m <= 2 * ARENA_HALF_M:
+            raise ValueError(
+                f"heard_reach_m must be a distance in metres above 0 and at most {2 * ARENA_HALF_M}, "
+                f"got {heard_reach_m!r}"
+            )
         if render_mode not in (None, "rgb_array"):
             raise ValueError(f"render_mode must be None or 'rgb_array', got {render_mode!r}")
         self.image_size = image_size
         self.success_rule = success_rule
         self.contact = contact
+        self.heard_reach_m = float(heard_reach_m)
         self.domain, self.room_ranges = room_and_ranges(domain)  # ranges: a new room every reset
         self.max_steps = max_steps or DEFAULT_MAX_STEPS
         self.render_mode = render_mode
@@ -525,7 +536,7 @@ class TurtleBotArenaEnv(MirroredWorld, gymnasium.Env):
         largest = int(np.argmax(shares))
         dominates = (
             shares[largest] >= HEARD_MIN_PIXEL_SHARE
-            and self.object_clearance(largest) <= HEARD_MAX_CLEARANCE_M
+            and self.object_clearance(largest) <= self.heard_reach_m
             and abs(self.object_bearing(largest)) <= math.radians(HEARD_MAX_BEARING_DEG)
         )
         rivals = [

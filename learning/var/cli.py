@@ -69,11 +69,23 @@ def collect(
         ),
     ] = "none",
     workers: Annotated[int, typer.Option(help="Parallel worker processes.")] = 2,
+    heard_reach: Annotated[
+        float | None,
+        typer.Option(
+            help="TurtleBot only: name a view after an object only within this many metres of the bumper "
+            "(default 0.6; 0.35 is the success distance)."
+        ),
+    ] = None,
     overwrite: bool = False,
 ) -> None:
     """Move the robot at random and store each view with the intent a person would name (-1: none)."""
     from learning.var.dataset import DatasetError, collect_dataset
 
+    if heard_reach is not None and world != "turtlebot":
+        raise typer.BadParameter(
+            f"--heard-reach applies to the turtlebot world only; the {world} world names a view by what the "
+            "gripper is at. Leave it out."
+        )
     try:
         _corpus(sounds)  # fail now, not after an hour of collection, if the corpus is missing
         dataset = collect_dataset(
@@ -85,6 +97,7 @@ def collect(
             domain=_domain(domain),
             workers=workers,
             overwrite=overwrite,
+            world_options={"heard_reach_m": heard_reach} if heard_reach is not None else None,
         )
     except (DatasetError, FileNotFoundError, ValueError) as error:
         _fail(error)

@@ -99,6 +99,7 @@ def _collect_part(
     image_size: int,
     domain: Any,
     views: str,
+    world_options: dict[str, Any] | None,
     report: Any,
 ) -> None:
     """Render `count` views of the kind `views` into rows [start, start+count) of the dataset files."""
@@ -112,7 +113,10 @@ def _collect_part(
         buffer_images = np.empty((CHUNK, image_size, image_size, 3), dtype=np.uint8)
         buffer_heard = np.empty(CHUNK, dtype=np.int64)
         filled, written = 0, start
-        for image, heard_id, _state in render(world, count, seed=seed, image_size=image_size, domain=domain):
+        rendered = render(
+            world, count, seed=seed, image_size=image_size, domain=domain, world_options=world_options
+        )
+        for image, heard_id, _state in rendered:
             buffer_images[filled] = image
             buffer_heard[filled] = NOTHING_HEARD if heard_id is None else heard_id
             filled += 1
@@ -137,7 +141,13 @@ def _collect_part(
 
 
 def _describe(
-    world: str, count: int, seed: int, image_size: int, domain: Any, views: str = "random"
+    world: str,
+    count: int,
+    seed: int,
+    image_size: int,
+    domain: Any,
+    views: str = "random",
+    world_options: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
     description = {
         "world": world,
@@ -148,6 +158,8 @@ def _describe(
     }
     if views != "random":  # random datasets collected before there was a choice keep matching
         description["views"] = views
+    if world_options:  # likewise datasets collected before worlds took options
+        description["world_options"] = world_options
     return json.loads(json.dumps(description))  # as it reads back from meta.json (tuples become lists)
 
 
@@ -162,9 +174,11 @@ def collect_dataset(
     overwrite: bool = False,
     progress: bool = True,
     views: str = "random",
+    world_options: dict[str, Any] | None = None,
 ) -> ImageDataset:
     """Let the robot move at random in `world` and store `count` views, each with what a person would say;
     `views="block_ends"`: with the gripper placed around a block's end instead (`sim.explore`, arm worlds).
+    `world_options` go to the world's constructor, e.g. `{"heard_reach_m": 0.35}` for the TurtleBot.
 
     Work is split over `workers` spawned processes (each its own seed) writing straight into the memory-mapped
     files. An identical complete dataset is reused; a different one is only replaced with `overwrite`.
@@ -177,11 +191,14 @@ def collect_dataset(
         raise DatasetError(f"--triplets must be positive, got {count}.")
     if views not in VIEW_KINDS:
         raise DatasetError(f"views must be one of {', '.join(VIEW_KINDS)}, got {views!r}.")
+    if world_options:
+        _check_world_options(world, world_options)
     path = dataset_path(name)
-    wanted = _describe(world, count, seed, image_size, domain, views)
+    wanted = _describe(world, count, seed, image_size, domain, views, world_options)
     if (path / "meta.json").is_file():
         existing = json.loads((path / "meta.json").read_text())
         same_kind = existing.get("views", "random") == views
+        same_kind &= existing.get("world_options") == wanted.get("world_options")
         if same_kind and all(existing.get(key) == value for key, value in wanted.items()) and not overwrite:
             return open_dataset(path)
         if not overwrite:
@@ -199,7 +216,7 @@ def collect_dataset(
     starts = np.concatenate([[0], np.cumsum(sizes)[:-1]]).tolist()
     started = time.perf_counter()
     seeds = _worker_seeds(seed, workers)
-    _run_workers(path, world, starts, sizes, seeds, image_size, domain, views, progress)
+    _run_workers(path, world, starts, sizes, seeds, image_size, domain, views, world_options, progress)
     elapsed = time.perf_counter() - started
 
     heard = np.load(path / "heard.npy")
@@ -213,6 +230,18 @@ def collect_dataset(
     return open_dataset(path)
 
 
+def _check_world_options(world: str, world_options: dict[str, Any]) -> None:
+    """Build the world once with the options, so a wrong one fails here and not in every worker."""
+    import gymnasium as gym
+
+    from sim import world_id
+
+    try:
+        gym.make(world_id(world), image_size=16, **world_options).close()
+    except (TypeError, ValueError) as error:
+        raise DatasetError(f"The {world} world refuses the options {world_options}: {error}") from error
+
+
 def _run_workers(
     path: Path,
     world: str,
@@ -222,11 +251,14 @@ def _run_workers(
     image_size: int,
     domain: Any,
     views: str,
+    world_options: dict[str, Any] | None,
     progress: bool,
 ) -> None:
     if len(sizes) == 1:  # no process to spawn: render here (small datasets, tests)
         report: Any = queue.SimpleQueue()
-        _collect_part(str(path), world, starts[0], sizes[0], seeds[0], image_size, domain, views, report)
+        _collect_part(
+            str(path), world, starts[0], sizes[0], seeds[0], image_size, domain, views, world_options, report
+        )
         _drain(report, [None], sum(sizes), progress, world)
         return
     context = multiprocessing.get_context("spawn")  # never fork a process that may hold torch threads
@@ -234,7 +266,7 @@ def _run_workers(
     processes = [
         context.Process(
             target=_collect_part,
-            args=(str(path), world, start, size, seed, image_size, domain, views, report),
+            args=(str(path), world, start, size, seed, image_size, domain, views, world_options, report),
             daemon=True,
         )
         for start, size, seed in zip(starts, sizes, seeds, strict=True)
