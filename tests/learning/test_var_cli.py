@@ -81,6 +81,8 @@ def test_collect_train_finetune_eval_and_plot_from_the_command_line(small_wordse
 def test_bad_input_gets_a_clear_message_and_exit_code_2(small_wordset, tmp_path) -> None:
     result, output = invoke("collect", "mars", "--triplets", "10")
     assert result.exit_code == 2 and "Unknown world 'mars'" in output
+    result, output = invoke("collect", "kuka", "--triplets", "10", "--heard-reach", "0.35")
+    assert result.exit_code == 2 and "--heard-reach applies to the turtlebot world only" in output
     result, output = invoke("train", "no-such-dataset", "--sounds", "wordset")
     assert result.exit_code == 2 and "varbot var collect" in output
     result, output = invoke("train", "cli-kuka", "--speed-copies", "2", "--speed-range", "fast")

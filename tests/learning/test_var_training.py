@@ -219,6 +219,30 @@ def test_views_around_the_blocks_ends_are_collected_alike_and_never_taken_for_ra
         collect_dataset("kuka", 10, "test-var-kuka-anywhere", image_size=SIZE, views="anywhere")
 
 
+def test_a_tighter_heard_reach_names_fewer_of_the_same_views_and_is_its_own_dataset():
+    """World options reach the world in every worker: the robot wanders the same way, but only views from
+    close by are named after an object."""
+    wide = collect_dataset("turtlebot", 300, "test-var-tb-wide", seed=3, image_size=SIZE, progress=False)
+    tight = collect_dataset(
+        "turtlebot",
+        300,
+        "test-var-tb-tight",
+        seed=3,
+        image_size=SIZE,
+        progress=False,
+        world_options={"heard_reach_m": 0.2},
+    )
+    np.testing.assert_array_equal(tight.images, wide.images)
+    named = tight.heard >= 0
+    np.testing.assert_array_equal(tight.heard[named], wide.heard[named])
+    assert 0 < named.sum() < (wide.heard >= 0).sum()
+    assert tight.meta["world_options"] == {"heard_reach_m": 0.2} and "world_options" not in wide.meta
+    with pytest.raises(DatasetError, match="--overwrite"):
+        collect_dataset("turtlebot", 300, "test-var-tb-tight", seed=3, image_size=SIZE, progress=False)
+    with pytest.raises(DatasetError, match=r"refuses the options .*heard_reach_m must be a distance"):
+        collect_dataset("turtlebot", 10, "test-var-tb-bad", world_options={"heard_reach_m": -1.0})
+
+
 def test_speed_copies_are_faster_and_slower_renderings_of_every_chosen_clip(wordset):
     train = wordset.subset("train")
     speaker = train.speaker[0]

@@ -11,9 +11,11 @@ from sim.domain import DomainShift
 from sim.turtlebot_arena import (
     ARENA_HALF_M,
     CONTROL_PERIOD_S,
+    HEARD_MAX_CLEARANCE_M,
     OBJECTS,
     ROBOT_RADIUS_M,
     STAND_STILL_ACTION,
+    SUCCESS_CLEARANCE_M,
     SUCCESS_HOLD_STEPS,
     TurtleBotArenaEnv,
     action_to_velocity,
@@ -193,6 +195,25 @@ def test_heard_is_none_for_a_far_object_or_two_objects_side_by_side(env):
     assert info["heard"] is None
 
 
+def face_the_cylinder_from(arena: TurtleBotArenaEnv, clearance_m: float) -> dict:
+    cylinder = 3
+    centre_distance = clearance_m + ROBOT_RADIUS_M + OBJECTS[cylinder].footprint_radius_m
+    _, info = arena.arrange((TARGET_XY[0] - centre_distance, TARGET_XY[1], 0.0), scene_with(cylinder))
+    return info
+
+
+def test_the_heard_reach_sets_how_close_a_named_view_must_be():
+    default, tight = make_env(), make_env(heard_reach_m=SUCCESS_CLEARANCE_M)
+    for arena in (default, tight):
+        arena.reset(seed=2)
+    assert default.heard_reach_m == HEARD_MAX_CLEARANCE_M
+    assert face_the_cylinder_from(default, 0.45)["heard"] == 3  # it fills the view from 45 cm ...
+    assert face_the_cylinder_from(tight, 0.45)["heard"] is None  # ... but is out of reach
+    assert face_the_cylinder_from(tight, 0.3)["heard"] == 3
+    for arena in (default, tight):
+        arena.close()
+
+
 def test_rendering_shows_the_object_in_front_in_its_colour(env):
     env.reset(seed=4)
     observation, _ = env.arrange((TARGET_XY[0] - 0.35, 0.0, 0.0), scene_with(0))  # the red cube
@@ -290,6 +311,8 @@ def test_bad_arguments_say_what_is_wrong():
         TurtleBotArenaEnv(success_rule="sometimes")
     with pytest.raises(ValueError, match="contact must be one of"):
         TurtleBotArenaEnv(contact="bounce")
+    with pytest.raises(ValueError, match="heard_reach_m must be a distance"):
+        TurtleBotArenaEnv(heard_reach_m=0.0)
     arena = make_env()
     with pytest.raises(ValueError, match="intent"):
         arena.reset(seed=0, options={"intent": 4})
