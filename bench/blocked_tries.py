@@ -11,8 +11,9 @@ class that fits it:
 - pressed against something else: it stood still for its last `STILL_STEPS` steps, touching another object
   or a wall (the "stop" rule drops a blocked move, so a robot driving on into an obstacle stays put);
 - stopped short of its object: it stood still for its last `STILL_STEPS` steps facing its object (within the
-  success bearing), beyond reach but close enough for the object to fill the view (`HEARD_MAX_CLEARANCE_M`,
-  the distance at which the VAR's training views name it);
+  success bearing), beyond reach but within the world's default heard reach (`HEARD_MAX_CLEARANCE_M`, 0.6 m,
+  where the default VAR's training views name it; a VAR made with `--var-heard-reach` names views only closer,
+  so for its runs this class is a fixed distance band, not its own reach);
 - never saw its object: not one pixel of it in any view;
 - elsewhere: anything else (it saw its object and ended away from it, still moving).
 
@@ -41,9 +42,8 @@ from rich.table import Table
 
 RESULTS = Path(__file__).resolve().parent / "results" / "blocked_tries.json"
 STILL_STEPS = 20  # a try that has not moved for this many steps at its end has stopped for good
-STILL_M = (
-    0.01  # "not moved": every position of those steps within 1 cm of the last (a standing policy creeps)
-)
+# "not moved": every position of those steps within 1 cm of the last (a standing policy creeps)
+STILL_M = 0.01
 TOUCHING_M = 0.02  # within one integration slice (1.25 cm) of an obstacle, with margin
 ENDINGS = (
     "at its object, off-centre",
