@@ -101,6 +101,12 @@ def parse_arguments() -> argparse.Namespace:
         "--var-room-copies", type=int, default=0, help="train the VAR with this many simulated-room copies"
     )
     parser.add_argument(
+        "--var-voice-copies",
+        type=int,
+        default=0,
+        help="train the VAR with this many formant-warped copies (another vocal tract) of every clip",
+    )
+    parser.add_argument(
         "--var-heard-reach",
         type=float,
         default=None,
@@ -217,27 +223,32 @@ def ensure_encoders(world: str, sounds: str, policy_image_size: int, args: argpa
     return out
 
 
+def var_name(world: str, sounds: str, args: argparse.Namespace) -> str:
+    """A VAR trained here is named by its views, its sounds and each training option off its default."""
+    schedule = f"-{args.var_max_steps}steps" if args.var_max_steps else ""
+    speed = f"-speed{args.var_speed_copies}" if args.var_speed_copies else ""
+    rooms = f"-rooms{args.var_room_copies}" if args.var_room_copies else ""
+    voices = f"-voices{args.var_voice_copies}" if args.var_voice_copies else ""
+    front_end = "" if args.var_front_end == "mfcc" else f"-{args.var_front_end}"
+    return f"{Path(row_dataset(world, args)).name}-{sounds}{schedule}{speed}{rooms}{voices}{front_end}"
+
+
 def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
     """The VAR for a row: --var if given, else one trained here (on --var-dataset or on new views)."""
     if args.var is not None:
         return args.var
     from core.paths import data_subdir
 
-    dataset = row_dataset(world, args)
-    schedule = f"-{args.var_max_steps}steps" if args.var_max_steps else ""
-    speed = f"-speed{args.var_speed_copies}" if args.var_speed_copies else ""
-    rooms = f"-rooms{args.var_room_copies}" if args.var_room_copies else ""
-    front_end = "" if args.var_front_end == "mfcc" else f"-{args.var_front_end}"
-    name = f"{Path(dataset).name}-{sounds}{schedule}{speed}{rooms}{front_end}"
-    run_dir = data_subdir("bench", "reproduce", "var", name)
+    run_dir = data_subdir("bench", "reproduce", "var", var_name(world, sounds, args))
     final = run_dir / "final.pt"
     if not final.exists():
-        ensure_dataset(world, sounds, args)
+        dataset = ensure_dataset(world, sounds, args)
+        copies = {"--speed-copies": args.var_speed_copies, "--room-copies": args.var_room_copies,
+                  "--voice-copies": args.var_voice_copies}  # fmt: skip
+        copy_args = [word for flag, n in copies.items() if n for word in (flag, str(n))]
         schedule_args = ["--max-steps", str(args.var_max_steps)] if args.var_max_steps else []
-        speed_args = ["--speed-copies", str(args.var_speed_copies)] if args.var_speed_copies else []
-        room_args = ["--room-copies", str(args.var_room_copies)] if args.var_room_copies else []
         varbot("var", "train", dataset, "--sounds", sounds, "--run-dir", str(run_dir), "--threads", "1",
-               "--front-end", args.var_front_end, *schedule_args, *speed_args, *room_args)  # fmt: skip
+               "--front-end", args.var_front_end, *schedule_args, *copy_args)  # fmt: skip
     return final
 
 
