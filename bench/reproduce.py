@@ -223,14 +223,20 @@ def ensure_encoders(world: str, sounds: str, policy_image_size: int, args: argpa
     return out
 
 
+# Copies a VAR trained here may add to its clips: (the name's tag, the argument, `varbot var train`'s flag)
+VAR_COPIES = (
+    ("speed", "var_speed_copies", "--speed-copies"),
+    ("rooms", "var_room_copies", "--room-copies"),
+    ("voices", "var_voice_copies", "--voice-copies"),
+)
+
+
 def var_name(world: str, sounds: str, args: argparse.Namespace) -> str:
     """A VAR trained here is named by its views, its sounds and each training option off its default."""
     schedule = f"-{args.var_max_steps}steps" if args.var_max_steps else ""
-    speed = f"-speed{args.var_speed_copies}" if args.var_speed_copies else ""
-    rooms = f"-rooms{args.var_room_copies}" if args.var_room_copies else ""
-    voices = f"-voices{args.var_voice_copies}" if args.var_voice_copies else ""
+    copies = "".join(f"-{tag}{getattr(args, arg)}" for tag, arg, _ in VAR_COPIES if getattr(args, arg))
     front_end = "" if args.var_front_end == "mfcc" else f"-{args.var_front_end}"
-    return f"{Path(row_dataset(world, args)).name}-{sounds}{schedule}{speed}{rooms}{voices}{front_end}"
+    return f"{Path(row_dataset(world, args)).name}-{sounds}{schedule}{copies}{front_end}"
 
 
 def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
@@ -243,9 +249,10 @@ def ensure_var(world: str, sounds: str, args: argparse.Namespace) -> Path:
     final = run_dir / "final.pt"
     if not final.exists():
         dataset = ensure_dataset(world, sounds, args)
-        copies = {"--speed-copies": args.var_speed_copies, "--room-copies": args.var_room_copies,
-                  "--voice-copies": args.var_voice_copies}  # fmt: skip
-        copy_args = [word for flag, n in copies.items() if n for word in (flag, str(n))]
+        copy_args = []
+        for _, arg, flag in VAR_COPIES:
+            if getattr(args, arg):
+                copy_args += [flag, str(getattr(args, arg))]
         schedule_args = ["--max-steps", str(args.var_max_steps)] if args.var_max_steps else []
         varbot("var", "train", dataset, "--sounds", sounds, "--run-dir", str(run_dir), "--threads", "1",
                "--front-end", args.var_front_end, *schedule_args, *copy_args)  # fmt: skip
