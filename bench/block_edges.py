@@ -7,14 +7,21 @@
    was trained with (exp((match − 1)/T) for a sharpened base, the match itself otherwise).
 2. **Where the policy ends.** The VAR + policy play the evaluation protocol's episodes (deterministic, goal
    clips from an unheard tier) in one process; each try's end is put in one class: success, at another block,
-   past an end of the target block (in its column, beyond its long side), beside it, or elsewhere.
+   past an end of the target block (in its column, beyond its long side), beside it, or elsewhere; and
+   whether the gripper's target ended on a limit of the workspace (each try keeps where the gripper
+   started). `--episodes-from RUN/bench-eval-TIER.json` replays the very tries a `bench/reproduce.py`
+   evaluation recorded (layout, command, goal clip) instead, and
+   counts how many end as recorded.
 
 Prints a table, writes JSON and a PNG per room. About 3 min a room on this machine.
 
     .venv/bin/python bench/block_edges.py --rooms training,unseen_room
+    .venv/bin/python bench/block_edges.py --var VAR.pt --policy RUN/checkpoint.pt --rooms training \
+        --tier unheard-easy --episodes-from RUN/bench-eval-unheard-easy.json
 """
 
 import argparse
+import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -36,6 +43,7 @@ from matplotlib.patches import Rectangle
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 FAR_M = 0.10  # an end farther than this from the target's centre is "elsewhere"
+EDGE_M = 1e-4  # a target this close to a workspace limit was clipped there
 REACHED_M = 0.005  # a scan view counts only where the gripper got this close to its position
 
 
@@ -60,6 +68,11 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--layouts", type=int, default=10, help="block layouts scanned per command")
     parser.add_argument("--reach-cm", type=int, default=10, help="the scan runs from -reach to +reach")
     parser.add_argument("--episodes-per-intent", type=int, default=50, help="policy tries (0: scan only)")
+    parser.add_argument(
+        "--episodes-from",
+        type=Path,
+        help="replay the tries of a bench/reproduce.py evaluation (RUN/bench-eval-TIER.json)",
+    )
     parser.add_argument("--seed", type=int, default=12345)
     parser.add_argument("--out", type=Path, default=RESULTS / "block_edges.json")
     return parser.parse_args(argv)
@@ -175,26 +188,71 @@ def classify_end(offset_m: np.ndarray, heard: int, intent: int, block_m: tuple[f
     return "beside the target"
 
 
+def at_workspace_edge(target_xy: tuple[float, float]) -> bool:
+    """Whether the gripper's target stands on a limit of the workspace (the arm clips every move to it)."""
+    from sim.arm import WORKSPACE_X_M, WORKSPACE_Y_M
+
+    return any(
+        abs(value - limit) < EDGE_M
+        for value, limits in zip(target_xy, (WORKSPACE_X_M, WORKSPACE_Y_M), strict=True)
+        for limit in limits
+    )
+
+
 END_CLASSES = ("success", "another block", "past an end of the target", "beside the target", "elsewhere")
 
 
-def play(env: gymnasium.Env, models: Models, per_intent: int, seed: int) -> list[dict]:
-    """The evaluation protocol's tries, one at a time: each try's intent, end class and final offset (cm)."""
+@dataclass(frozen=True)
+class Try:
+    intent: int
+    layout_seed: int
+    goal_clip: int  # row of the tier's clip bank
+    stored_success: bool | None = None  # the outcome `bench/reproduce.py` recorded, for a replayed try
+
+
+def protocol_tries(models: Models, per_intent: int, seed: int) -> list[Try]:
+    """The evaluation protocol's schedule of tries, with a goal clip drawn for each."""
     from learning.rl.evaluate import episode_schedule
+
+    schedule = episode_schedule(4, per_intent, seed)
+    return [
+        Try(
+            intent,
+            layout_seed,
+            int(models.bank.sample(np.array([intent]), np.random.default_rng([seed, i + 1]))[0]),
+        )
+        for i, (intent, layout_seed) in enumerate(schedule)
+    ]
+
+
+def stored_tries(path: Path, tier: str) -> list[Try]:
+    """The tries a `bench/reproduce.py` evaluation recorded (RUN/bench-eval-<tier>.json), to replay them."""
+    stored = json.loads(path.read_text())
+    if stored.get("split") != tier:
+        raise SystemExit(
+            f"{path} holds {stored.get('split')!r} tries; pass --tier {stored.get('split')} to replay them"
+        )
+    return [Try(e["intent"], e["seed"], e["goal_clip"], e["success"]) for e in stored["episodes"]]
+
+
+def play(env: gymnasium.Env, models: Models, schedule: list[Try]) -> list[dict]:
+    """The tries one at a time: each try's intent, end class and final offset (cm)."""
     from sim.blocks import BLOCK_SIZE_M
 
     tries = []
-    schedule = episode_schedule(4, per_intent, seed)
-    policy = models.policy
-    for index, (intent, layout_seed) in enumerate(tqdm(schedule, desc="tries", unit="try")):
-        goal = models.bank.sample(np.array([intent]), np.random.default_rng([seed, index + 1]))
-        observation, _ = env.reset(seed=layout_seed, options={"intent": intent})
+    for planned in tqdm(schedule, desc="tries", unit="try"):
+        intent = planned.intent
+        observation, _ = env.reset(seed=planned.layout_seed, options={"intent": intent})
+        start_xy = [round(float(v), 4) for v in env.unwrapped.arm.gripper_xy()]
         centre = np.asarray(env.unwrapped.slot_position(intent)[:2])
-        touched, final_heard = play_one(env, models, policy, observation, goal, intent)
+        goal = np.array([planned.goal_clip])
+        touched, final_heard = play_one(env, models, models.policy, observation, goal, intent)
         offset = np.asarray(env.unwrapped.arm.gripper_xy()) - centre
         tries.append({
             "intent": intent, "end": classify_end(offset, final_heard, intent, BLOCK_SIZE_M[:2]),
             "offset_cm": [round(100 * float(v), 2) for v in offset], "touched_target": touched,
+            "at_workspace_edge": at_workspace_edge(env.unwrapped.arm.target_xy), "start_xy_m": start_xy,
+            **({} if planned.stored_success is None else {"stored_success": planned.stored_success}),
         })  # fmt: skip
     return tries
 
@@ -233,11 +291,21 @@ def summarise_tries(tries: list[dict]) -> dict[str, Any]:
         "ends": {end: sum(t["end"] == end for t in tries) for end in END_CLASSES},
         "ends_by_intent": by_intent,
         "failed_after_touching_target": sum(t["touched_target"] for t in failed),
+        "failed_at_workspace_edge": sum(t.get("at_workspace_edge", False) for t in failed),
         "past_an_end_towards_camera": sum(
             t["end"] == "past an end of the target" and t["offset_cm"][0] > 0 for t in tries
         ),
         "success_offset_cm_mean": mean_offset([t for t in tries if t["end"] == "success"]),
+        **agreement(tries),
     }
+
+
+def agreement(tries: list[dict]) -> dict[str, int]:
+    """For replayed tries: how many ended as `bench/reproduce.py` recorded them (success or not)."""
+    replayed = [t for t in tries if "stored_success" in t]
+    if not replayed:
+        return {}
+    return {"agrees_with_stored": sum((t["end"] == "success") == t["stored_success"] for t in replayed)}
 
 
 def mean_offset(tries: list[dict]) -> list[float] | None:
@@ -246,11 +314,17 @@ def mean_offset(tries: list[dict]) -> list[float] | None:
     return [round(float(v), 2) for v in np.mean([t["offset_cm"] for t in tries], axis=0)]
 
 
+def planned_tries(args: argparse.Namespace, models: Models) -> list[Try]:
+    if args.episodes_from is not None:
+        return stored_tries(args.episodes_from, args.tier)
+    return protocol_tries(models, args.episodes_per_intent, args.seed)
+
+
 def measure_room(args: argparse.Namespace, models: Models, room: str) -> dict[str, Any]:
     env = make_world(args.world, room, int(models.var.config.image_size))
     try:
         profile = scan(env, models, args.layouts, args.reach_cm, args.seed)
-        tries = play(env, models, args.episodes_per_intent, args.seed) if args.episodes_per_intent else []
+        tries = play(env, models, planned_tries(args, models))
     finally:
         env.close()
     return {
@@ -280,7 +354,14 @@ def report(results: dict[str, dict]) -> None:
             table.add_row(room, axis, span(ray), span(extents["var"]), reward)
     console.print(table)
     tries = Table(title="Where the policy's tries end")
-    for column in ("room", "success", *END_CLASSES[1:], "failed after touching the target"):
+    for column in (
+        "room",
+        "success",
+        *END_CLASSES[1:],
+        "failed after touching the target",
+        "failed at the edge",
+        "as recorded",
+    ):
         tries.add_column(column, justify="right")
     for room, result in results.items():
         policy = result["policy"]
@@ -288,9 +369,15 @@ def report(results: dict[str, dict]) -> None:
             ends = policy["ends"]
             tries.add_row(
                 room, f"{100 * policy['success_rate']:.1f} %", *(str(ends[e]) for e in END_CLASSES[1:]),
-                str(policy["failed_after_touching_target"]),
+                str(policy["failed_after_touching_target"]), str(policy["failed_at_workspace_edge"]),
+                as_recorded(policy),
             )  # fmt: skip
     console.print(tries)
+
+
+def as_recorded(policy: dict[str, Any]) -> str:
+    """How many replayed tries ended as recorded ("–": tries of the protocol's own schedule)."""
+    return f"{policy['agrees_with_stored']} of {policy['tries']}" if "agrees_with_stored" in policy else "–"
 
 
 def span(extent: list[int] | None) -> str:
@@ -362,6 +449,7 @@ def main(argv: list[str] | None = None) -> None:
         "var_sha256": file_sha256(var_path), "policy_sha256": file_sha256(policy_path),
         "tier": args.tier, "layouts_per_command": args.layouts,
         "episodes_per_intent": args.episodes_per_intent, "seed": args.seed,
+        "episodes_from": None if args.episodes_from is None else str(args.episodes_from),
         "reward_temperature": models.temperature, "rooms": results, "png": png.name,
         **measured,
     })  # fmt: skip

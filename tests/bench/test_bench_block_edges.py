@@ -1,6 +1,8 @@
 """bench/block_edges.py: its scan puts the gripper where it says, so the ray's verdict traces the real block,
 and each try's end falls in the class its last view and offset say."""
 
+import json
+
 import block_edges as bench
 import numpy as np
 import pytest
@@ -65,7 +67,7 @@ def test_the_scan_traces_the_target_block_where_the_ray_finds_it(models: bench.M
 def test_each_try_ends_in_one_class_with_its_offset_from_the_target(models: bench.Models) -> None:
     env = bench.make_world("kuka", "training", 96)
     try:
-        tries = bench.play(env, models, per_intent=1, seed=5)
+        tries = bench.play(env, models, bench.protocol_tries(models, per_intent=1, seed=5))
     finally:
         env.close()
     assert sorted(t["intent"] for t in tries) == [0, 1, 2, 3]
@@ -76,3 +78,63 @@ def test_each_try_ends_in_one_class_with_its_offset_from_the_target(models: benc
             assert abs(dy) <= BLOCK[1] / 2 + 0.01 and abs(dx) <= BLOCK[0] / 2 + 0.01 and end["touched_target"]
     summary = bench.summarise_tries(tries)
     assert sum(summary["ends"].values()) == 4
+
+
+def test_a_gripper_driven_into_a_corner_of_the_workspace_is_at_its_edge() -> None:
+    env = bench.make_world("kuka", "training", 32)
+    try:
+        env.reset(seed=0, options={"intent": 0})
+        arm = env.unwrapped.arm
+        assert not bench.at_workspace_edge(arm.target_xy), "the gripper starts inside the workspace"
+        for _ in range(40):
+            env.step(np.array([1.0, 1.0], dtype=np.float32))
+        assert bench.at_workspace_edge(arm.target_xy)
+    finally:
+        env.close()
+
+
+def test_the_summary_counts_the_failed_tries_that_ended_at_the_workspace_edge() -> None:
+    tries = [
+        {"intent": 0, "end": "success", "offset_cm": [0.0, 0.0], "touched_target": True,
+         "at_workspace_edge": True},
+        {"intent": 1, "end": "elsewhere", "offset_cm": [9.0, 16.0], "touched_target": False,
+         "at_workspace_edge": True},
+        {"intent": 2, "end": "beside the target", "offset_cm": [1.0, 2.5], "touched_target": True,
+         "at_workspace_edge": False},
+    ]  # fmt: skip
+    summary = bench.summarise_tries(tries)
+    assert summary["failed_at_workspace_edge"] == 1 and summary["failed_after_touching_target"] == 1
+
+
+def test_a_recorded_evaluation_is_replayed_try_by_try_and_compared_with_its_record(
+    models: bench.Models, tmp_path
+) -> None:  # type: ignore[no-untyped-def]
+    recorded = [
+        {"intent": 2, "seed": 11, "goal_clip": 2, "success": True},
+        {"intent": 0, "seed": 12, "goal_clip": 4, "success": False},
+    ]
+    path = tmp_path / "bench-eval-unheard-easy.json"
+    path.write_text(json.dumps({"split": "unheard-easy", "episodes": recorded}))
+    schedule = bench.stored_tries(path, "unheard-easy")
+    assert [(t.intent, t.layout_seed, t.goal_clip) for t in schedule] == [(2, 11, 2), (0, 12, 4)]
+    env = bench.make_world("kuka", "training", 96)
+    try:
+        tries = bench.play(env, models, schedule)
+    finally:
+        env.close()
+    assert [t["intent"] for t in tries] == [2, 0]
+    assert all(len(t["start_xy_m"]) == 2 for t in tries)
+    agreeing = sum((t["end"] == "success") == r["success"] for t, r in zip(tries, recorded, strict=True))
+    assert bench.summarise_tries(tries)["agrees_with_stored"] == agreeing
+
+
+def test_a_recorded_evaluation_of_another_tier_is_refused(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    path = tmp_path / "bench-eval-unheard-real-voices.json"
+    path.write_text(json.dumps({"split": "unheard-real-voices", "episodes": []}))
+    with pytest.raises(SystemExit, match="pass --tier unheard-real-voices"):
+        bench.stored_tries(path, "unheard-easy")
+
+
+def test_tries_not_replayed_from_a_record_say_nothing_about_agreement() -> None:
+    tries = [{"intent": 0, "end": "success", "offset_cm": [0.0, 0.0], "touched_target": True}]
+    assert "agrees_with_stored" not in bench.summarise_tries(tries)
