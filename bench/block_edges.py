@@ -75,7 +75,13 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     )
     parser.add_argument("--seed", type=int, default=12345)
     parser.add_argument("--out", type=Path, default=RESULTS / "block_edges.json")
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    if args.episodes_from is not None and args.rooms != "training":
+        parser.error(
+            "--episodes-from replays tries that bench/reproduce.py played in the training room, "
+            f"not in {args.rooms!r}: pass --rooms training"
+        )
+    return args
 
 
 def load_models(var_path: Path, policy_path: Path, tier: str) -> Models:

@@ -138,3 +138,13 @@ def test_a_recorded_evaluation_of_another_tier_is_refused(tmp_path) -> None:  # 
 def test_tries_not_replayed_from_a_record_say_nothing_about_agreement() -> None:
     tries = [{"intent": 0, "end": "success", "offset_cm": [0.0, 0.0], "touched_target": True}]
     assert "agrees_with_stored" not in bench.summarise_tries(tries)
+
+
+def test_recorded_tries_are_replayed_only_in_the_room_they_were_played_in(capsys) -> None:  # type: ignore[no-untyped-def]
+    with pytest.raises(SystemExit):
+        bench.parse_args(
+            ["--episodes-from", "bench-eval-unheard-easy.json", "--rooms", "training,unseen_room"]
+        )
+    assert "pass --rooms training" in capsys.readouterr().err
+    args = bench.parse_args(["--episodes-from", "bench-eval-unheard-easy.json", "--rooms", "training"])
+    assert args.episodes_from.name == "bench-eval-unheard-easy.json"
