@@ -10,8 +10,7 @@
    past an end of the target block (in its column, beyond its long side), beside it, or elsewhere; and
    whether the gripper's target ended on a limit of the workspace (each try keeps where the gripper
    started). `--episodes-from RUN/bench-eval-TIER.json` replays the very tries a `bench/reproduce.py`
-   evaluation recorded (layout, command, goal clip) instead, and
-   counts how many end as recorded.
+   evaluation recorded (layout, command, goal clip) instead, and counts how many end as recorded.
 
 Prints a table, writes JSON and a PNG per room. About 3 min a room on this machine.
 
