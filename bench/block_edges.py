@@ -21,6 +21,7 @@ Prints a table, writes JSON and a PNG per room. About 3 min a room on this machi
 
 import argparse
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -42,6 +43,7 @@ from matplotlib.patches import Rectangle
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 FAR_M = 0.10  # an end farther than this from the target's centre is "elsewhere"
+START_BAND_CM = 5  # the summary counts tries by the gripper's start y in bands this wide
 EDGE_M = 1e-4  # a target this close to a workspace limit was clipped there
 REACHED_M = 0.005  # a scan view counts only where the gripper got this close to its position
 
@@ -302,7 +304,22 @@ def summarise_tries(tries: list[dict]) -> dict[str, Any]:
         ),
         "success_offset_cm_mean": mean_offset([t for t in tries if t["end"] == "success"]),
         **agreement(tries),
+        **by_start_band(tries),
     }
+
+
+def by_start_band(tries: list[dict]) -> dict[str, dict]:
+    """Tries and failed tries by where the gripper started across the row (y, in START_BAND_CM bands)."""
+    started = [t for t in tries if "start_xy_m" in t]
+    if not started:
+        return {}
+    bands: dict[str, dict[str, int]] = {}
+    for t in sorted(started, key=lambda t: t["start_xy_m"][1]):
+        low = START_BAND_CM * math.floor(100 * t["start_xy_m"][1] / START_BAND_CM)
+        band = bands.setdefault(f"{low:+d} to {low + START_BAND_CM:+d} cm", {"tries": 0, "failed": 0})
+        band["tries"] += 1
+        band["failed"] += t["end"] != "success"
+    return {"by_start_y": bands}
 
 
 def agreement(tries: list[dict]) -> dict[str, int]:

@@ -148,3 +148,18 @@ def test_recorded_tries_are_replayed_only_in_the_room_they_were_played_in(capsys
     assert "pass --rooms training" in capsys.readouterr().err
     args = bench.parse_args(["--episodes-from", "bench-eval-unheard-easy.json", "--rooms", "training"])
     assert args.episodes_from.name == "bench-eval-unheard-easy.json"
+
+
+def test_the_summary_counts_tries_and_failures_by_where_the_gripper_started() -> None:
+    tries = [
+        {"intent": 0, "end": "success", "offset_cm": [0.0, 0.0], "touched_target": True,
+         "start_xy_m": [0.6, 0.27]},
+        {"intent": 3, "end": "elsewhere", "offset_cm": [9.0, 16.0], "touched_target": False,
+         "start_xy_m": [0.55, 0.29]},
+        {"intent": 1, "end": "success", "offset_cm": [0.0, 0.0], "touched_target": True,
+         "start_xy_m": [0.6, -0.03]},
+    ]  # fmt: skip
+    assert bench.summarise_tries(tries)["by_start_y"] == {
+        "-5 to +0 cm": {"tries": 1, "failed": 0},
+        "+25 to +30 cm": {"tries": 2, "failed": 1},
+    }
