@@ -11,6 +11,9 @@
    whether the gripper's target ended on a limit of the workspace (each try keeps where the gripper
    started). `--episodes-from RUN/bench-eval-TIER.json` replays the very tries a `bench/reproduce.py`
    evaluation recorded (layout, command, goal clip) instead, and counts how many end as recorded.
+   `--actions sampled` plays each try with actions drawn from the policy's Gaussian, as in training (one
+   seeded draw per try), instead of its mean, as the evaluation protocol does: whether a failure is the
+   mean's alone.
 
 Prints a table, writes JSON and a PNG per room. About 3 min a room on this machine.
 
@@ -73,6 +76,12 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
         "--episodes-from",
         type=Path,
         help="replay the tries of a bench/reproduce.py evaluation (RUN/bench-eval-TIER.json)",
+    )
+    parser.add_argument(
+        "--actions",
+        choices=["mean", "sampled"],
+        default="mean",
+        help="the policy's mean action (the evaluation protocol) or one drawn from its Gaussian (training)",
     )
     parser.add_argument("--seed", type=int, default=12345)
     parser.add_argument("--out", type=Path, default=RESULTS / "block_edges.json")
@@ -242,18 +251,22 @@ def stored_tries(path: Path, tier: str) -> list[Try]:
     return [Try(e["intent"], e["seed"], e["goal_clip"], e["success"]) for e in stored["episodes"]]
 
 
-def play(env: gymnasium.Env, models: Models, schedule: list[Try]) -> list[dict]:
-    """The tries one at a time: each try's intent, end class and final offset (cm)."""
+def play(
+    env: gymnasium.Env, models: Models, schedule: list[Try], sampled_seed: int | None = None
+) -> list[dict]:
+    """The tries one at a time: each try's intent, end class and final offset (cm). With `sampled_seed`,
+    actions are drawn from the policy's Gaussian (try i's draws seeded by `sampled_seed + i`)."""
     from sim.blocks import BLOCK_SIZE_M
 
     tries = []
-    for planned in tqdm(schedule, desc="tries", unit="try"):
+    for index, planned in enumerate(tqdm(schedule, desc="tries", unit="try")):
         intent = planned.intent
         observation, _ = env.reset(seed=planned.layout_seed, options={"intent": intent})
         start_xy = [round(float(v), 4) for v in env.unwrapped.arm.gripper_xy()]
         centre = np.asarray(env.unwrapped.slot_position(intent)[:2])
         goal = np.array([planned.goal_clip])
-        touched, final_heard = play_one(env, models, models.policy, observation, goal, intent)
+        noise = None if sampled_seed is None else torch.Generator().manual_seed(sampled_seed + index)
+        touched, final_heard = play_one(env, models, models.policy, observation, goal, intent, noise)
         offset = np.asarray(env.unwrapped.arm.gripper_xy()) - centre
         tries.append({
             "intent": intent, "end": classify_end(offset, final_heard, intent, BLOCK_SIZE_M[:2]),
@@ -266,9 +279,16 @@ def play(env: gymnasium.Env, models: Models, schedule: list[Try]) -> list[dict]:
 
 @torch.inference_mode()
 def play_one(
-    env: gymnasium.Env, models: Models, policy: Any, observation: dict, goal: np.ndarray, intent: int
+    env: gymnasium.Env,
+    models: Models,
+    policy: Any,
+    observation: dict,
+    goal: np.ndarray,
+    intent: int,
+    noise: torch.Generator | None = None,
 ) -> tuple[bool, int]:
-    """Plays one try to its end; (whether the gripper was over the target at any step, what it ends over)."""
+    """Plays one try to its end; (whether the gripper was over the target at any step, what it ends over).
+    With `noise`, each action is drawn from the policy's Gaussian around its mean, as in training."""
     from learning.rl.evaluate import goal_inputs
 
     goal_features = policy.encode_goal(goal_inputs(models.bank, goal, policy.config.goal_encoder))
@@ -279,7 +299,12 @@ def play_one(
         state = torch.from_numpy(np.asarray(observation["state"], dtype=np.float32)[None])
         var_view = models.var.encode_image(image) if policy.config.var_dim else torch.zeros(1, 0)
         mean, _, hidden = policy.step(policy.view_of(image), var_view, state, goal_features, hidden, start)
-        observation, _, terminated, truncated, info = env.step(mean.clamp(-1.0, 1.0).numpy()[0])
+        action = (
+            mean
+            if noise is None
+            else mean + policy.actor_logstd.exp() * torch.randn(mean.shape, generator=noise)
+        )
+        observation, _, terminated, truncated, info = env.step(action.clamp(-1.0, 1.0).numpy()[0])
         start, heard = torch.zeros(1), int(info["heard"])
         touched |= heard == intent
         done = terminated or truncated
@@ -346,7 +371,8 @@ def measure_room(args: argparse.Namespace, models: Models, room: str) -> dict[st
     env = make_world(args.world, room, int(models.var.config.image_size))
     try:
         profile = scan(env, models, args.layouts, args.reach_cm, args.seed)
-        tries = play(env, models, planned_tries(args, models))
+        sampled_seed = args.seed if args.actions == "sampled" else None
+        tries = play(env, models, planned_tries(args, models), sampled_seed)
     finally:
         env.close()
     return {
@@ -360,7 +386,7 @@ def measure_room(args: argparse.Namespace, models: Models, room: str) -> dict[st
     }
 
 
-def report(results: dict[str, dict]) -> None:
+def report(results: dict[str, dict], actions: str = "mean") -> None:
     console = Console()
     table = Table(title="Where the target block ends: the ray against the VAR (cm from its centre)")
     for column in ("room", "axis", "ray: on it", "VAR: on it", "reward: centre / 2 cm past the ray's edge"):
@@ -375,7 +401,7 @@ def report(results: dict[str, dict]) -> None:
             )
             table.add_row(room, axis, span(ray), span(extents["var"]), reward)
     console.print(table)
-    tries = Table(title="Where the policy's tries end")
+    tries = Table(title=f"Where the policy's tries end ({actions} actions)")
     for column in (
         "room",
         "success",
@@ -462,7 +488,7 @@ def main(argv: list[str] | None = None) -> None:
     models = load_models(var_path, policy_path, args.tier)
     results = {room: measure_room(args, models, room) for room in args.rooms.split(",")}
     measured = conditions.finish()
-    report(results)
+    report(results, args.actions)
     print(describe(measured))
     png = args.out.with_suffix(".png")
     plot(results, png)
@@ -470,7 +496,7 @@ def main(argv: list[str] | None = None) -> None:
         "world": args.world, "var": str(var_path), "policy": str(policy_path),
         "var_sha256": file_sha256(var_path), "policy_sha256": file_sha256(policy_path),
         "tier": args.tier, "layouts_per_command": args.layouts,
-        "episodes_per_intent": args.episodes_per_intent, "seed": args.seed,
+        "episodes_per_intent": args.episodes_per_intent, "seed": args.seed, "actions": args.actions,
         "episodes_from": None if args.episodes_from is None else str(args.episodes_from),
         "reward_temperature": models.temperature, "rooms": results, "png": png.name,
         **measured,

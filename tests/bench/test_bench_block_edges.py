@@ -163,3 +163,20 @@ def test_the_summary_counts_tries_and_failures_by_where_the_gripper_started() ->
         "-5 to +0 cm": {"tries": 1, "failed": 0},
         "+25 to +30 cm": {"tries": 2, "failed": 1},
     }
+
+
+def test_sampled_actions_repeat_with_their_seed_and_leave_the_mean_path(models: bench.Models) -> None:
+    schedule = [bench.Try(intent=1, layout_seed=21, goal_clip=1)]
+    env = bench.make_world("kuka", "training", 96)
+    try:
+        mean_end = bench.play(env, models, schedule)[0]["offset_cm"]
+        sampled_ends = [bench.play(env, models, schedule, sampled_seed=7)[0]["offset_cm"] for _ in range(2)]
+    finally:
+        env.close()
+    assert sampled_ends[0] == sampled_ends[1]
+    assert sampled_ends[0] != mean_end
+
+
+def test_the_actions_default_to_the_evaluation_protocols_mean() -> None:
+    assert bench.parse_args(["--rooms", "training"]).actions == "mean"
+    assert bench.parse_args(["--rooms", "training", "--actions", "sampled"]).actions == "sampled"
