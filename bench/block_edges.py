@@ -13,7 +13,7 @@
    evaluation recorded (layout, command, goal clip) instead, and counts how many end as recorded.
    `--actions sampled` plays each try with actions drawn from the policy's Gaussian, as in training (one
    seeded draw per try), instead of its mean, as the evaluation protocol does: whether a failure is the
-   mean's alone.
+   mean's alone. Sampled tries are not compared with the record, which holds the mean's outcomes.
 
 Prints a table, writes JSON and a PNG per room. About 3 min a room on this machine.
 
@@ -267,12 +267,13 @@ def play(
         goal = np.array([planned.goal_clip])
         noise = None if sampled_seed is None else torch.Generator().manual_seed(sampled_seed + index)
         touched, final_heard = play_one(env, models, models.policy, observation, goal, intent, noise)
+        recorded = planned.stored_success if noise is None else None  # the record holds the mean's outcomes
         offset = np.asarray(env.unwrapped.arm.gripper_xy()) - centre
         tries.append({
             "intent": intent, "end": classify_end(offset, final_heard, intent, BLOCK_SIZE_M[:2]),
             "offset_cm": [round(100 * float(v), 2) for v in offset], "touched_target": touched,
             "at_workspace_edge": at_workspace_edge(env.unwrapped.arm.target_xy), "start_xy_m": start_xy,
-            **({} if planned.stored_success is None else {"stored_success": planned.stored_success}),
+            **({} if recorded is None else {"stored_success": recorded}),
         })  # fmt: skip
     return tries
 
@@ -299,11 +300,11 @@ def play_one(
         state = torch.from_numpy(np.asarray(observation["state"], dtype=np.float32)[None])
         var_view = models.var.encode_image(image) if policy.config.var_dim else torch.zeros(1, 0)
         mean, _, hidden = policy.step(policy.view_of(image), var_view, state, goal_features, hidden, start)
-        action = (
-            mean
-            if noise is None
-            else mean + policy.actor_logstd.exp() * torch.randn(mean.shape, generator=noise)
-        )
+        if noise is not None:  # the trainer's own Gaussian, drawn from this try's generator
+            gaussian = policy.distribution(mean)
+            action = torch.normal(gaussian.mean, gaussian.stddev, generator=noise)
+        else:
+            action = mean
         observation, _, terminated, truncated, info = env.step(action.clamp(-1.0, 1.0).numpy()[0])
         start, heard = torch.zeros(1), int(info["heard"])
         touched |= heard == intent

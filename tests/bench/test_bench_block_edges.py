@@ -180,3 +180,15 @@ def test_sampled_actions_repeat_with_their_seed_and_leave_the_mean_path(models: 
 def test_the_actions_default_to_the_evaluation_protocols_mean() -> None:
     assert bench.parse_args(["--rooms", "training"]).actions == "mean"
     assert bench.parse_args(["--rooms", "training", "--actions", "sampled"]).actions == "sampled"
+
+
+def test_sampled_replays_are_not_compared_with_the_record_of_the_mean(models: bench.Models) -> None:
+    schedule = [bench.Try(intent=2, layout_seed=11, goal_clip=2, stored_success=True)]
+    env = bench.make_world("kuka", "training", 96)
+    try:
+        mean_tries = bench.play(env, models, schedule)
+        sampled_tries = bench.play(env, models, schedule, sampled_seed=3)
+    finally:
+        env.close()
+    assert "agrees_with_stored" in bench.summarise_tries(mean_tries)
+    assert "agrees_with_stored" not in bench.summarise_tries(sampled_tries)
