@@ -10,16 +10,19 @@ Missing pieces are made first through the project's own commands: the corpus (`v
 VAR's triplets (`varbot var collect`) and the VAR (`varbot var train`), unless --var names a checkpoint to
 use.
 
-Two training options. --hard-target-share S (default 0.5, as every new run; 0 draws every target uniformly,
-as the paper) gives a share S of the episodes to targets whose recent mean return (the run's own reward,
-intrinsic for VAR) is furthest below the best target's. --target-intents 0 trains on target 0 only: the
+Three training options. --hard-target-share S (default 0.5, as every new run; 0 draws every target
+uniformly, as the paper) gives a share S of the episodes to targets whose recent mean return (the run's own
+reward, intrinsic for VAR) is furthest below the best target's. --hard-start-share S (Kuka and Kinova; default
+0, uniform starts) does the same for where the gripper starts: five strips across the table, 0.1 m wide in y,
+so that starts at the edge of the camera's frame, which the policy rarely learns to leave, come up more often;
+evaluation episodes start where they always did. --target-intents 0 trains on target 0 only: the
 diagnostic that showed "zero" alone is learnable; such runs go under "diagnostics", not into the table.
 --experiment records a run under "experiments", beside its row, so trying a PPO variant (--ent-coef,
---goal-match, --reward-against-others, --reward-temperature, --contact) never replaces the row's result; its
-curve still joins the row's figure. --var-heard-reach R makes the TurtleBot's VAR from views named after an
-object only within R metres of it (its own dataset and VAR). --contact slide trains and evaluates TurtleBot
-rows in the arena where a blocked robot glides along what it meets instead of standing still
-(sim.turtlebot_arena).
+--goal-match, --reward-against-others, --reward-temperature, --contact, --hard-start-share) never replaces
+the row's result; its curve still joins the row's figure. --var-heard-reach R makes the TurtleBot's VAR
+from views named after an object only within R metres of it (its own dataset and VAR). --contact slide trains
+and evaluates TurtleBot rows in the arena where a blocked robot glides along what it meets instead of standing
+still (sim.turtlebot_arena).
 
 `bench/results/reproduce.json` keeps one record per row: status (complete / partial), env steps, wall time,
 steps/s, labels used (counted as the paper does), success per unheard tier and per intent, where each
@@ -159,6 +162,13 @@ def parse_arguments() -> argparse.Namespace:
         type=float,
         default=0.5,
         help="curriculum: share of episodes whose target favours low recent return (0: uniform, the paper)",
+    )
+    parser.add_argument(
+        "--hard-start-share",
+        type=float,
+        default=None,
+        help="block worlds: share of episodes whose gripper starts in the strips of the table where recent "
+        "episodes earned least (default 0: uniform starts, the paper); training only",
     )
     parser.add_argument(
         "--experiment",
@@ -408,6 +418,7 @@ def optional_overrides(args: argparse.Namespace) -> dict:
         "reward_against_others": args.reward_against_others,
         "reward_temperature": args.reward_temperature,
         "contact": args.contact,
+        "hard_start_share": args.hard_start_share,
     }
     return {name: value for name, value in given.items() if value is not None}
 

@@ -45,6 +45,9 @@ BLOCK_SPACING_M = 0.1
 ROW_X_RANGE_M = (0.50, 0.70)  # row origin = centre of slot 0
 ROW_Y_RANGE_M = (-0.20, -0.10)
 GRIPPER_START_MARGIN_M = 0.05  # the gripper starts anywhere in the workspace shrunk by this margin
+START_X_M = (WORKSPACE_X_M[0] + GRIPPER_START_MARGIN_M, WORKSPACE_X_M[1] - GRIPPER_START_MARGIN_M)
+START_Y_M = (WORKSPACE_Y_M[0] + GRIPPER_START_MARGIN_M, WORKSPACE_Y_M[1] - GRIPPER_START_MARGIN_M)
+START_STRIPS = 5  # strips across the table, 0.1 m wide in y, for a trainer that chooses where episodes start
 
 
 class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
@@ -104,18 +107,20 @@ class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
         super().reset(seed=seed)
         options = dict(options or {})
         self.intent = self._pick_intent(options.pop("intent", None))
+        strip = _start_strip_option(options.pop("start_strip", None))
         if options:
-            raise ValueError(f"unknown reset options {sorted(options)}; the only option is 'intent'")
+            raise ValueError(
+                f"unknown reset options {sorted(options)}; the options are 'intent' and 'start_strip'"
+            )
         self.row_origin = self.np_random.uniform(
             [ROW_X_RANGE_M[0], ROW_Y_RANGE_M[0]], [ROW_X_RANGE_M[1], ROW_Y_RANGE_M[1]]
         )
         for slot, block in enumerate(self.blocks):
             self.client.resetBasePositionAndOrientation(block, self.slot_position(slot), [0, 0, 0, 1])
-        margin = GRIPPER_START_MARGIN_M
-        start = self.np_random.uniform(
-            [WORKSPACE_X_M[0] + margin, WORKSPACE_Y_M[0] + margin],
-            [WORKSPACE_X_M[1] - margin, WORKSPACE_Y_M[1] - margin],
-        )
+        start = self.np_random.uniform([START_X_M[0], START_Y_M[0]], [START_X_M[1], START_Y_M[1]])
+        if strip is not None:  # the same draw, squeezed into the strip: the rest of the episode's draws stay
+            low, high = start_strip_bounds(strip)
+            start[1] = low + (start[1] - START_Y_M[0]) / (START_Y_M[1] - START_Y_M[0]) * (high - low)
         self.arm.reset_to(*start)
         if self.room_ranges is not None:  # drawn after the task: same seed, same task as in a fixed room
             self._enter_room(
@@ -248,6 +253,30 @@ class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
             path = TABLE_TEXTURE if kind == "table" else str(texture_file(kind, squares))
             self._textures[key] = self.client.loadTexture(path)
         return self._textures[key]
+
+
+def start_strip_bounds(strip: int) -> tuple[float, float]:
+    """The y range (metres) of one of the `START_STRIPS` strips the gripper's starts are drawn from."""
+    width = (START_Y_M[1] - START_Y_M[0]) / START_STRIPS
+    return START_Y_M[0] + strip * width, START_Y_M[0] + (strip + 1) * width
+
+
+def start_strip_of(y_m: np.ndarray) -> np.ndarray:
+    """Which start strip each gripper y (metres) lies in (clipped to the first and last)."""
+    width = (START_Y_M[1] - START_Y_M[0]) / START_STRIPS
+    strips = np.floor((np.asarray(y_m, dtype=np.float64) - START_Y_M[0]) / width).astype(np.int64)
+    return np.clip(strips, 0, START_STRIPS - 1)
+
+
+def _start_strip_option(strip: Any) -> int | None:
+    if strip is None:
+        return None
+    if isinstance(strip, bool) or not isinstance(strip, int | np.integer) or not 0 <= strip < START_STRIPS:
+        raise ValueError(
+            f"options['start_strip'] must be an int in 0..{START_STRIPS - 1} (a strip of the table in y, "
+            f"from {START_Y_M[0]:.2f} to {START_Y_M[1]:.2f} m), got {strip!r}"
+        )
+    return int(strip)
 
 
 def _make_blocks(client: BulletClient) -> list[int]:

@@ -57,6 +57,13 @@ def train(
             help="Curriculum: share of episodes whose target favours low recent return (0: uniform)."
         ),
     ] = 0.5,
+    hard_start_share: Annotated[
+        float,
+        typer.Option(
+            help="Block worlds: share of episodes whose gripper starts in the strips of the table where "
+            "recent episodes earned least (0: anywhere, uniformly)."
+        ),
+    ] = 0.0,
     room: Annotated[
         str, typer.Option(help="training, or randomised: a room per episode from core.rooms.RoomRanges")
     ] = "training",
@@ -150,6 +157,7 @@ def train(
         num_minibatches=2 if envs % 2 == 0 else 1,
         seed=seed,
         hard_target_share=hard_target_share,
+        hard_start_share=hard_start_share,
         room=room,
         goal_match=goal_match,
         reward_temperature=reward_temperature,

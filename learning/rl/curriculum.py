@@ -1,6 +1,7 @@
 """Which targets the worlds ask for: a curriculum that favours targets whose recent return is low, and an
 optional restriction to some targets (diagnostics). The workers draw their next targets with these
-probabilities (`RLInfo.intent_weights`)."""
+probabilities (`RLInfo.intent_weights`). In the block worlds, a second curriculum favours the strips of the
+table where episodes that start there earn least (`RLInfo.start_strip_weights`)."""
 
 import numpy as np
 
@@ -46,5 +47,27 @@ class Curriculum:
             weights[target] = weight
         if weights == self.weights:
             return None  # a fresh trainer starts from None: it always sends
+        self.weights = weights
+        return weights
+
+
+class StartCurriculum:
+    """Off without a hard share. Otherwise a share of the episodes start in the strips of the table
+    (`sim.blocks.START_STRIPS`) whose recent mean return lies furthest below the best strip's: the starts a
+    policy has not learned to leave yet (its intrinsic return, never the simulator's success)."""
+
+    def __init__(self, hard_share: float, num_strips: int) -> None:
+        self.hard_share = hard_share
+        self.num_strips = num_strips
+        self.active = hard_share > 0
+        self.weights: list[float] | None = None  # the last ones sent
+
+    def next_weights(self, stats: EpisodeStats) -> list[float] | None:
+        """New start-strip probabilities for the workers; None when they already hold these (or it is off)."""
+        if not self.active:
+            return None
+        weights = curriculum_weights(stats.return_by_start_strip(self.num_strips), self.hard_share)
+        if weights == self.weights:
+            return None
         self.weights = weights
         return weights

@@ -24,7 +24,9 @@ class RLInfo(gym.Wrapper):
     the target, simulator ground truth used only by the shaped-reward baseline), episode (int, index within
     the schedule; -1 once a schedule is exhausted). With `intent_weights` set (the learner's curriculum, via
     `vector_env.set_attr`), an episode outside a schedule draws its intent with those probabilities instead
-    of the world's uniform draw. With `mirror_in_info` set (the learner sets it on the
+    of the world's uniform draw; with `start_strip_weights` set (the learner's start curriculum, block worlds
+    only), it also draws the strip of the table its gripper starts in (`sim.blocks.start_strip_bounds`). With
+    `mirror_in_info` set (the learner sets it on the
     one environment a watcher follows: `vector_env.set_attr`), also mirror: the world's pose as JSON
     (`sim.mirror`), so a watcher needs no extra round trip to the worker."""
 
@@ -34,6 +36,7 @@ class RLInfo(gym.Wrapper):
         self.episode = -1
         self.mirror_in_info = False
         self.intent_weights: list[float] | None = None
+        self.start_strip_weights: list[float] | None = None
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[Any, dict]:
         self.episode += 1
@@ -41,12 +44,21 @@ class RLInfo(gym.Wrapper):
         if self.schedule is not None and self.episode < len(self.schedule):
             intent, seed = self.schedule[self.episode]
             options["intent"] = intent
-        elif self.intent_weights is not None and "intent" not in options:
-            # a seeded reset draws from its seed, later episodes from the world's own (seeded) generator
-            rng = np.random.default_rng(seed) if seed is not None else self.env.unwrapped.np_random
-            options["intent"] = int(rng.choice(len(self.intent_weights), p=self.intent_weights))
+        else:
+            self._draw_curriculum_options(seed, options)
         obs, info = self.env.reset(seed=seed, options=options or None)
         return obs, self._info(obs, info)
+
+    def _draw_curriculum_options(self, seed: int | None, options: dict) -> None:
+        """Add the curricula's draws (target, start strip) to `options`, unless the caller chose them."""
+        curricula = (("intent", self.intent_weights), ("start_strip", self.start_strip_weights))
+        wanted = [(key, weights) for key, weights in curricula if weights is not None and key not in options]
+        if not wanted:
+            return
+        # a seeded reset draws from its seed, later episodes from the world's own (seeded) generator
+        rng = np.random.default_rng(seed) if seed is not None else self.env.unwrapped.np_random
+        for key, weights in wanted:
+            options[key] = int(rng.choice(len(weights), p=weights))
 
     def step(self, action: np.ndarray) -> tuple[Any, float, bool, bool, dict]:
         obs, reward, terminated, truncated, info = self.env.step(action)

@@ -45,7 +45,7 @@ from learning.rl.checkpoints import (  # the F401 ones: callers reach them throu
     with_legacy_run_options,
     write_run_checkpoint,
 )
-from learning.rl.curriculum import Curriculum
+from learning.rl.curriculum import Curriculum, StartCurriculum
 from learning.rl.env_groups import EnvGroups, ended_view, env_rooms, replay_env_indices
 from learning.rl.frozen_var import LoadedVar, VarOnDevice
 from learning.rl.goals import EpisodeGoals, goal_source
@@ -62,6 +62,7 @@ from learning.rl.watch import (
 )
 from learning.var.model import VAR
 from learning.var.room_adaptation import in_view_order, with_statistics
+from sim.blocks import START_STRIPS, start_strip_of
 
 
 @dataclass
@@ -83,6 +84,10 @@ class PPOConfig:
     bounded_mean: bool = PolicyConfig.bounded_mean  # keep the Gaussian's mean inside the action range
     goal_match: bool = PolicyConfig.goal_match  # the policy also sees f_I(I_t)·f_S(S_goal); experimental
     hard_target_share: float = 0.5  # share of episodes whose target favours low recent return (0: uniform)
+    # block worlds: share of episodes whose gripper starts in the strips of the table where recent episodes
+    # earned least (learning.rl.curriculum.StartCurriculum; 0: anywhere, uniformly, as the paper); training
+    # only: the evaluation protocol's starts never change
+    hard_start_share: float = 0.0
     target_intents: list[int] | None = None  # diagnostics: the world asks only for these targets (None: all)
     image_size: int = 96  # rendered size; must equal the VAR's input size
     policy_image_size: int = PolicyConfig.policy_image_size
@@ -201,6 +206,7 @@ class PPOConfig:
             raise ValueError("choose the reward against other commands or a reward temperature, not both")
         if not 0.0 <= self.hard_target_share <= 1.0:
             raise ValueError(f"hard_target_share must be in [0, 1], got {self.hard_target_share}")
+        self._validate_start_curriculum()
         if self.target_intents is not None and not self.target_intents:
             raise ValueError("target_intents must name at least one target (None: all of them)")
         if self.aux_loss_coef and self.goal_encoder != "learned":
@@ -208,6 +214,17 @@ class PPOConfig:
         if self.init_encoders is not None and self.goal_encoder != "learned":
             raise ValueError(
                 "pre-trained encoders replace the baselines' own encoders: use goal_encoder='learned'"
+            )
+
+    def _validate_start_curriculum(self) -> None:
+        import sim
+
+        if not 0.0 <= self.hard_start_share <= 1.0:
+            raise ValueError(f"hard_start_share must be in [0, 1], got {self.hard_start_share}")
+        if self.hard_start_share and not sim.has_blocks(self.world):
+            raise ValueError(
+                "hard_start_share chooses the strip of the table the gripper starts in: a setting of the "
+                f"block worlds, not of {self.world!r} (use 0)"
             )
 
     @classmethod
@@ -304,6 +321,7 @@ class PPOTrainer:
         self.envs: EnvGroups | None = None  # started by `start`
         self.policy: Policy | None = None
         self.needs_reset = True  # environments are (re-)seeded before the first update and after a resume
+        self.start_strip: np.ndarray | None = None  # each episode's start strip (start curriculum only)
         self.policy_sees_var = False  # the policy's view is this VAR's hidden layer (set by `reset_envs`)
         self.views_var: VAR | VarOnDevice | None = None  # the VAR that embeds rendered views (set by `start`)
         self.replay_views_var: VAR | VarOnDevice | None = None  # the replay rooms' (see `_replay_views_var`)
@@ -355,6 +373,7 @@ class PPOTrainer:
         self.curriculum = Curriculum(
             c.hard_target_share, c.target_intents, self.num_intents, self.goals.has_intents
         )
+        self.start_curriculum = StartCurriculum(c.hard_start_share, START_STRIPS)
         self.episodes = EpisodeTracker(
             self.stats, self.goals.has_intents, replay_env_indices(c.num_envs, c.replay_envs)
         )
@@ -449,6 +468,13 @@ class PPOTrainer:
         weights = self.curriculum.next_weights(self.stats)
         if weights is not None:
             self.envs.set_attr("intent_weights", [weights] * self.config.num_envs)
+        start_weights = self.start_curriculum.next_weights(self.stats)
+        if start_weights is not None:
+            self.envs.set_attr("start_strip_weights", [start_weights] * self.config.num_envs)
+
+    def _start_strips(self, states: np.ndarray) -> np.ndarray | None:
+        """The strip each new episode's gripper starts in, while the start curriculum runs (else None)."""
+        return start_strip_of(np.asarray(states)[:, 1]) if self.start_curriculum.active else None
 
     def reset_envs(self) -> None:
         """Re-seed every environment (at the start and checkpoint boundaries); clear per-episode state."""
@@ -466,6 +492,7 @@ class PPOTrainer:
             self.next_var, views = self._see(obs["image"], np.arange(E))
             self.next_policy_images = self.view_changes.apply(views, slice(None))
         self.next_state = torch.from_numpy(obs["state"]).float()
+        self.start_strip = self._start_strips(obs["state"])
         self.next_start = torch.ones(E)
         self.intent = info["intent"].astype(np.int64)
         self.heard = info["heard"].astype(np.int64)
@@ -597,7 +624,7 @@ class PPOTrainer:
             )  # fmt: skip
             reward[cut] += c.gamma * final_value
 
-        finished += self.episodes.step(group, raw, done, ended.success, self.intent)
+        finished += self.episodes.step(group, raw, done, ended.success, self.intent, self.start_strip)
         next_var = reward_embedding.clone()
         if len(done_envs):
             next_var[done_envs] = reset_embedding
@@ -614,6 +641,8 @@ class PPOTrainer:
         if len(done_envs):
             started = done_envs + group.start
             self.episode_goals.draw(started, self.intent[started], self.rng, self.policy)
+            if self.start_strip is not None:
+                self.start_strip[started] = self._start_strips(obs["state"][done_envs])
         self.timings.policy_s += time.perf_counter() - tick
         return reward, torch.from_numpy(done.astype(np.float32)), raw
 
@@ -752,6 +781,7 @@ class PPOTrainer:
             "recent_success_by_intent": self.stats.success_by_intent(self.num_intents),
             **self.success_by_room(),
             "intent_weights": self.curriculum.weights,
+            "start_strip_weights": self.start_curriculum.weights,
             "time": {k: round(v - getattr(before, k), 4) for k, v in asdict(self.timings).items()},
             "peak_memory_mb": self.memory.peak_mb,
             **stats,

@@ -24,6 +24,9 @@ class EpisodeStats:
     successes: deque = field(default_factory=lambda: deque(maxlen=100))
     intents: deque = field(default_factory=lambda: deque(maxlen=100))  # -1: unknown (older checkpoints)
     replayed: deque = field(default_factory=lambda: deque(maxlen=100))  # ran in a replay environment
+    # the strip of the table the gripper started in (sim.blocks.start_strip_of); -1: not tracked (the start
+    # curriculum is off, or the checkpoint is older)
+    start_strips: deque = field(default_factory=lambda: deque(maxlen=100))
 
     @classmethod
     def over_last(cls, episodes: int) -> "EpisodeStats":
@@ -47,6 +50,11 @@ class EpisodeStats:
         pairs = list(zip(self.intents, self.returns, strict=True))
         return [mean_or_nan([r for i, r in pairs if i == intent]) for intent in range(num_intents)]
 
+    def return_by_start_strip(self, num_strips: int) -> list[float]:
+        """Recent mean episode return of each start strip (NaN for a strip with none in the window)."""
+        pairs = list(zip(self.start_strips, self.returns, strict=True))
+        return [mean_or_nan([r for k, r in pairs if k == strip]) for strip in range(num_strips)]
+
 
 class EpisodeTracker:
     """Sums each environment's episode as it runs; a finished episode goes into `stats`."""
@@ -64,9 +72,11 @@ class EpisodeTracker:
         self.episode_length = np.zeros(num_envs, dtype=np.int64)
 
     def step(
-        self, group: slice, raw: np.ndarray, done: np.ndarray, success: np.ndarray, intent: np.ndarray
-    ) -> list[dict[str, float]]:
-        """Add the group's step; returns the episodes it ended. `intent` is every environment's target."""
+        self, group: slice, raw: np.ndarray, done: np.ndarray, success: np.ndarray, intent: np.ndarray,
+        start_strip: np.ndarray | None = None,
+    ) -> list[dict[str, float]]:  # fmt: skip
+        """Add the group's step; returns the episodes it ended. `intent` is every environment's target,
+        `start_strip` the strip every environment's episode started in (None: not tracked)."""
         self.episode_return[group] += raw
         self.episode_length[group] += 1
         finished = []
@@ -83,6 +93,7 @@ class EpisodeTracker:
             self.stats.successes.append(ok)
             self.stats.intents.append(int(intent[e]))
             self.stats.replayed.append(int(e) in self.replay_envs)
+            self.stats.start_strips.append(-1 if start_strip is None else int(start_strip[e]))
         self.episode_return[group][done] = 0.0
         self.episode_length[group][done] = 0
         return finished

@@ -15,7 +15,7 @@ from rl_helpers import IMAGE, WORDS, tiny_config
 from core.rooms import DomainShift, RoomRanges
 from learning.rl.baselines import method_config
 from learning.rl.checkpoints import FORMAT_VERSION
-from learning.rl.curriculum import curriculum_weights
+from learning.rl.curriculum import StartCurriculum, curriculum_weights
 from learning.rl.env_groups import env_rooms
 from learning.rl.envs import NO_SOUND, make_env_fn, world_id
 from learning.rl.evaluate import EpisodeResult, deal, episode_schedule, evaluate, median_miss_by_intent
@@ -25,6 +25,7 @@ from learning.rl.rewards import ClipBank
 from learning.rl.stats import EpisodeStats, EpisodeTracker
 from learning.var.checkpoint import save_var
 from learning.var.model import VAR, VARConfig
+from sim.blocks import start_strip_bounds
 
 pytestmark = [pytest.mark.slow, pytest.mark.speech]
 
@@ -41,6 +42,28 @@ def make(config: PPOConfig, run_dir: Path, var_path: Path, clips: ClipBank) -> P
     trainer = PPOTrainer(config, run_dir, load_frozen_var(var_path), bank, current_sounds=heard_now)
     trainer.start()
     return trainer
+
+
+def rollout_after(
+    config: PPOConfig,
+    run_dir: Path,
+    var_path: Path,
+    clips: ClipBank,
+    kind: str,
+    recent: list[tuple[int, float]],
+) -> tuple[PPOTrainer, Rollout, list[dict[str, float]]]:
+    """One rollout of a new trainer whose recent episodes (keyed by `kind`: intents or start_strips) earned
+    these returns; the trainer comes back closed."""
+    trainer = make(config, run_dir, var_path, clips)
+    try:
+        for key, episode_return in recent:
+            getattr(trainer.stats, kind).append(key)
+            trainer.stats.returns.append(episode_return)
+        trainer.reset_envs()
+        buf, finished = trainer.collect_rollout()
+    finally:
+        trainer.close()
+    return trainer, buf, finished
 
 
 def train_through(config: PPOConfig, run_dir: Path, var_path: Path, clips: ClipBank) -> PPOTrainer:
@@ -85,6 +108,7 @@ def test_resuming_from_a_checkpoint_gives_identical_next_updates(
         current_sound=False,
         goal_match=True,
         hard_target_share=0.5,
+        hard_start_share=0.5,
     )
     straight = train_through(config, tmp_path / "straight", var_checkpoint, goal_clips)
     saved = torch.load(tmp_path / "straight" / "checkpoint_000001.pt", map_location="cpu", weights_only=False)
@@ -115,6 +139,9 @@ def test_resuming_from_a_checkpoint_gives_identical_next_updates(
     # so is the curriculum: the resumed run draws its targets with the same probabilities
     assert lines[1]["intent_weights"] == original[1]["intent_weights"]
     assert sum(lines[1]["intent_weights"]) == pytest.approx(1.0) and lines[1]["intent_weights"] != [0.25] * 4
+    # and where the grippers start
+    assert lines[1]["start_strip_weights"] == original[1]["start_strip_weights"]
+    assert sum(lines[1]["start_strip_weights"]) == pytest.approx(1.0)
 
 
 Watcher = Callable[[RolloutStep], None]
@@ -402,13 +429,14 @@ def test_recent_success_in_the_replay_environments_is_reported_apart_from_the_ru
     assert stats.success_by_room() == {"own_room": 1.0, "replay_room": 0.0}
 
 
-def test_a_checkpoint_from_before_the_replay_split_resumes_its_episodes_as_the_runs_own_rooms(
+def test_a_checkpoint_from_before_the_replay_split_and_start_strips_resumes_as_own_room_unknown_strips(
     tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
 ) -> None:
     config = tiny_config(total_steps=2 * 48, num_envs=4, max_episode_steps=3, reward="var")
     train_through(config, tmp_path / "first", var_checkpoint, goal_clips)
     older = torch.load(tmp_path / "first" / "checkpoint_000001.pt", map_location="cpu", weights_only=False)
     del older["stats"]["replayed"]
+    del older["stats"]["start_strips"]
     (tmp_path / "resumed").mkdir()
     torch.save(older, tmp_path / "resumed" / "checkpoint.pt")
     resumed = make(config, tmp_path / "resumed", var_checkpoint, goal_clips)
@@ -416,6 +444,7 @@ def test_a_checkpoint_from_before_the_replay_split_resumes_its_episodes_as_the_r
         resumed.load_checkpoint()
         assert len(resumed.stats.successes) > 0
         assert list(resumed.stats.replayed) == [False] * len(resumed.stats.successes)
+        assert list(resumed.stats.start_strips) == [-1] * len(resumed.stats.successes)
         resumed.train(progress=False)
     finally:
         resumed.close()
@@ -452,18 +481,66 @@ def test_a_world_draws_its_targets_with_the_curriculums_weights() -> None:
 def test_the_trainers_curriculum_reaches_its_workers(
     tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
 ) -> None:
-    trainer = make(tiny_config(hard_target_share=1.0), tmp_path, var_checkpoint, goal_clips)
-    try:
-        for intent, episode_return in [(0, 5.0), (1, 5.0), (2, -5.0), (3, 4.0)]:
-            trainer.stats.intents.append(intent)
-            trainer.stats.returns.append(episode_return)
-        trainer.reset_envs()
-        buf, finished = trainer.collect_rollout()
-    finally:
-        trainer.close()
+    recent = [(0, 5.0), (1, 5.0), (2, -5.0), (3, 4.0)]
+    config = tiny_config(hard_target_share=1.0)
+    trainer, buf, finished = rollout_after(config, tmp_path, var_checkpoint, goal_clips, "intents", recent)
     # all of the share goes to the gaps: 10 of 11 to target 2, 1 of 11 to target 3
     assert trainer.curriculum.weights == pytest.approx([0.0, 0.0, 10 / 11, 1 / 11])
     assert len(finished) >= 2 and set(buf.intent.flatten().tolist()) <= {2, 3}
+
+
+def test_a_world_starts_its_gripper_in_the_strips_the_start_curriculum_draws() -> None:
+    env = make_env_fn(world_id("kuka"), IMAGE, max_steps=2)()
+    try:
+        env.reset(seed=0)
+        env.start_strip_weights = [0.0, 0.0, 0.0, 0.0, 1.0]
+        low, high = start_strip_bounds(4)
+        assert all(low - 0.01 <= env.reset()[0]["state"][1] <= high + 0.01 for _ in range(5))
+        env.start_strip_weights = [1.0, 0.0, 0.0, 0.0, 0.0]
+        low, high = start_strip_bounds(0)
+        assert all(low - 0.01 <= env.reset()[0]["state"][1] <= high + 0.01 for _ in range(5))
+        env.start_strip_weights = [0.2] * 5
+        assert env.reset(seed=7)[0]["state"][1] == env.reset(seed=7)[0]["state"][1]  # seeded draws repeat
+    finally:
+        env.close()
+
+
+def test_the_start_curriculum_favours_the_strips_where_recent_episodes_earned_least() -> None:
+    stats = EpisodeStats()
+    for strip, episode_return in [(0, 30.0), (1, 30.0), (2, 30.0), (3, 20.0), (4, 0.0), (-1, -50.0)]:
+        stats.start_strips.append(strip)
+        stats.returns.append(episode_return)
+    # -1 marks episodes whose start was not tracked: they count for no strip
+    assert stats.return_by_start_strip(5) == [30.0, 30.0, 30.0, 20.0, 0.0]
+    curriculum = StartCurriculum(hard_share=0.5, num_strips=5)
+    # half spread evenly, half by the gap to the best return (10 and 30 of 40)
+    expected = [0.1, 0.1, 0.1, 0.1 + 0.5 * 10 / 40, 0.1 + 0.5 * 30 / 40]
+    assert curriculum.next_weights(stats) == pytest.approx(expected)
+    assert curriculum.next_weights(stats) is None  # the workers already hold these
+    assert StartCurriculum(hard_share=0.0, num_strips=5).next_weights(stats) is None  # off: uniform starts
+
+
+def test_the_trainers_start_curriculum_reaches_its_workers_and_each_episode_keeps_its_strip(
+    tmp_path: Path, var_checkpoint: Path, goal_clips: ClipBank
+) -> None:
+    recent = [(0, 5.0), (1, 5.0), (2, 5.0), (3, 5.0), (4, -5.0)]
+    config = tiny_config(hard_target_share=0.0, hard_start_share=1.0)
+    trainer, buf, finished = rollout_after(
+        config, tmp_path, var_checkpoint, goal_clips, "start_strips", recent
+    )
+    assert trainer.start_curriculum.weights == [0.0, 0.0, 0.0, 0.0, 1.0]
+    low, high = start_strip_bounds(4)
+    starts = buf.state[buf.episode_start == 1][:, 1]
+    assert len(starts) >= 4 and ((starts >= low - 0.01) & (starts <= high + 0.01)).all()
+    assert len(finished) >= 4 and list(trainer.stats.start_strips)[-2:] == [4, 4]
+
+
+def test_the_start_curriculum_is_a_block_world_setting_between_zero_and_one() -> None:
+    tiny_config(hard_start_share=0.3).validate()
+    with pytest.raises(ValueError, match="hard_start_share must be in \\[0, 1\\]"):
+        tiny_config(hard_start_share=1.5).validate()
+    with pytest.raises(ValueError, match="block worlds, not of 'turtlebot'"):
+        tiny_config(world="turtlebot", hard_start_share=0.3).validate()
 
 
 def test_replay_environments_practise_in_their_own_rooms_beside_the_runs_room(

@@ -1,5 +1,6 @@
 """The Kuka and Kinova Gen3 block worlds: the reference task, success rules, `heard`, rendering, domains."""
 
+import itertools
 import subprocess
 import sys
 from pathlib import Path
@@ -12,6 +13,7 @@ from typer.testing import CliRunner
 
 import sim
 from sim.arm import STEP_M, WORKSPACE_X_M, WORKSPACE_Y_M
+from sim.blocks import START_STRIPS, START_Y_M, start_strip_bounds, start_strip_of
 from sim.domain import DomainShift
 from sim.explore import block_end_views, random_views
 from sim.oracle import evaluate_oracle, oracle_action
@@ -262,6 +264,35 @@ def test_bad_intents_and_actions_are_refused(world_env) -> None:
     env.reset(seed=0)
     with pytest.raises(ValueError, match="finite"):
         env.unwrapped.step(np.array([np.nan, 0.0]))
+
+
+def test_a_start_strip_moves_only_the_grippers_start_into_that_strip_of_the_table(world_env) -> None:
+    _, env = world_env
+    for strip in range(START_STRIPS):
+        free, free_info = env.reset(seed=7, options={"intent": 1})
+        free_blocks = [env.unwrapped.slot_position(slot) for slot in range(4)]
+        placed, placed_info = env.reset(seed=7, options={"intent": 1, "start_strip": strip})
+        low, high = start_strip_bounds(strip)
+        assert low - 0.01 <= placed["state"][1] <= high + 0.01  # the arm settles within a centimetre
+        assert placed["state"][0] == pytest.approx(free["state"][0], abs=0.01)  # x is drawn as without
+        assert [env.unwrapped.slot_position(slot) for slot in range(4)] == free_blocks
+        assert placed_info["intent"] == free_info["intent"] == 1
+
+
+def test_start_strips_cover_the_start_area_edge_to_edge() -> None:
+    bounds = [start_strip_bounds(strip) for strip in range(START_STRIPS)]
+    assert bounds[0][0] == pytest.approx(START_Y_M[0]) and bounds[-1][1] == pytest.approx(START_Y_M[1])
+    assert all(a[1] == pytest.approx(b[0]) for a, b in itertools.pairwise(bounds))
+    middles = [(low + high) / 2 for low, high in bounds]
+    assert start_strip_of(np.array(middles)).tolist() == list(range(START_STRIPS))
+    assert start_strip_of(np.array([START_Y_M[0] - 1, START_Y_M[1] + 1])).tolist() == [0, START_STRIPS - 1]
+
+
+@pytest.mark.parametrize("strip", [-1, START_STRIPS, 1.5, True, "2"])
+def test_a_start_strip_outside_the_table_is_refused(world_env, strip: object) -> None:
+    _, env = world_env
+    with pytest.raises(ValueError, match="start_strip"):
+        env.reset(seed=0, options={"start_strip": strip})
 
 
 def test_actions_move_the_gripper_target_by_two_centimetres_per_unit_and_stay_in_the_workspace(
