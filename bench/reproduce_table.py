@@ -21,6 +21,7 @@ AS_BEFORE = {
     "policy_hue_turn": 0.0,
     "policy_view_shift": 0,
     "contact": "stop",  # the TurtleBot arena's own rule
+    "hard_start_share": 0.0,
 }
 DATA_DIR_PREFIXES = ("$VARBOT_DATA_DIR/", "data/")  # a data directory elsewhere, or the default one
 

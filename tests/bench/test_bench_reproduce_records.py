@@ -199,6 +199,7 @@ def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_rec
         "reward_against_others": False,
         "policy_colour_jitter": 0.0,
         "contact": "stop",
+        "hard_start_share": 0.0,
     }
     elsewhere = run_record("unseen-room", 1, 0.1)
     elsewhere["config"] |= {"room": "unseen_room"}
@@ -210,9 +211,11 @@ def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_rec
     jittered["config"] |= {"policy_colour_jitter": 0.3}
     sliding = run_record("slide", 7, 0.9)
     sliding["config"] |= {"contact": "slide"}
+    hard_starts = run_record("start-curriculum", 8, 0.9)
+    hard_starts["config"] |= {"hard_start_share": 0.3}
     results = {
         "experiments": {"before": before},
-        "earlier_runs": [after, elsewhere, with_replay, against_others, jittered, sliding],
+        "earlier_runs": [after, elsewhere, with_replay, against_others, jittered, sliding, hard_starts],
     }
     [line] = table_lines(results)
     assert [s["tag"] for s in line["seeds"]] == ["before", "after"]
