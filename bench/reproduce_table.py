@@ -22,6 +22,8 @@ AS_BEFORE = {
     "policy_view_shift": 0,
     "contact": "stop",  # the TurtleBot arena's own rule
     "hard_start_share": 0.0,
+    "policy_view": "pixels",
+    "policy_view_follows_var": False,
 }
 DATA_DIR_PREFIXES = ("$VARBOT_DATA_DIR/", "data/")  # a data directory elsewhere, or the default one
 

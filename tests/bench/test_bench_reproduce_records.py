@@ -200,6 +200,8 @@ def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_rec
         "policy_colour_jitter": 0.0,
         "contact": "stop",
         "hard_start_share": 0.0,
+        "policy_view": "pixels",
+        "policy_view_follows_var": False,
     }
     elsewhere = run_record("unseen-room", 1, 0.1)
     elsewhere["config"] |= {"room": "unseen_room"}
@@ -213,9 +215,20 @@ def test_a_setting_added_later_at_the_value_that_trains_as_before_leaves_the_rec
     sliding["config"] |= {"contact": "slide"}
     hard_starts = run_record("start-curriculum", 8, 0.9)
     hard_starts["config"] |= {"hard_start_share": 0.3}
+    through_the_var = run_record("var-view", 9, 0.9)
+    through_the_var["config"] |= {"policy_view": "var"}
     results = {
         "experiments": {"before": before},
-        "earlier_runs": [after, elsewhere, with_replay, against_others, jittered, sliding, hard_starts],
+        "earlier_runs": [
+            after,
+            elsewhere,
+            with_replay,
+            against_others,
+            jittered,
+            sliding,
+            hard_starts,
+            through_the_var,
+        ],
     }
     [line] = table_lines(results)
     assert [s["tag"] for s in line["seeds"]] == ["before", "after"]
