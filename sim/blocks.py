@@ -48,6 +48,7 @@ GRIPPER_START_MARGIN_M = 0.05  # the gripper starts anywhere in the workspace sh
 START_X_M = (WORKSPACE_X_M[0] + GRIPPER_START_MARGIN_M, WORKSPACE_X_M[1] - GRIPPER_START_MARGIN_M)
 START_Y_M = (WORKSPACE_Y_M[0] + GRIPPER_START_MARGIN_M, WORKSPACE_Y_M[1] - GRIPPER_START_MARGIN_M)
 START_STRIPS = 5  # strips across the table, 0.1 m wide in y, for a trainer that chooses where episodes start
+START_STRIP_WIDTH_M = (START_Y_M[1] - START_Y_M[0]) / START_STRIPS
 
 
 class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
@@ -200,11 +201,7 @@ class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
     def _pick_intent(self, intent: Any) -> int:
         if intent is None:
             return int(self.np_random.integers(NUM_INTENTS))
-        if (
-            isinstance(intent, bool)
-            or not isinstance(intent, int | np.integer)
-            or not 0 <= intent < NUM_INTENTS
-        ):
+        if not _is_index(intent, NUM_INTENTS):
             raise ValueError(f"options['intent'] must be an int in 0..{NUM_INTENTS - 1}, got {intent!r}")
         return int(intent)
 
@@ -257,21 +254,26 @@ class BlocksEnv(MirroredWorld, gym.Env[dict, np.ndarray]):
 
 def start_strip_bounds(strip: int) -> tuple[float, float]:
     """The y range (metres) of one of the `START_STRIPS` strips the gripper's starts are drawn from."""
-    width = (START_Y_M[1] - START_Y_M[0]) / START_STRIPS
-    return START_Y_M[0] + strip * width, START_Y_M[0] + (strip + 1) * width
+    low = START_Y_M[0] + strip * START_STRIP_WIDTH_M
+    return low, low + START_STRIP_WIDTH_M
 
 
 def start_strip_of(y_m: np.ndarray) -> np.ndarray:
     """Which start strip each gripper y (metres) lies in (clipped to the first and last)."""
-    width = (START_Y_M[1] - START_Y_M[0]) / START_STRIPS
-    strips = np.floor((np.asarray(y_m, dtype=np.float64) - START_Y_M[0]) / width).astype(np.int64)
+    offsets = np.asarray(y_m, dtype=np.float64) - START_Y_M[0]
+    strips = np.floor(offsets / START_STRIP_WIDTH_M).astype(np.int64)
     return np.clip(strips, 0, START_STRIPS - 1)
+
+
+def _is_index(value: Any, count: int) -> bool:
+    """An int (not a bool) in 0..count-1: what the reset options 'intent' and 'start_strip' take."""
+    return not isinstance(value, bool) and isinstance(value, int | np.integer) and 0 <= value < count
 
 
 def _start_strip_option(strip: Any) -> int | None:
     if strip is None:
         return None
-    if isinstance(strip, bool) or not isinstance(strip, int | np.integer) or not 0 <= strip < START_STRIPS:
+    if not _is_index(strip, START_STRIPS):
         raise ValueError(
             f"options['start_strip'] must be an int in 0..{START_STRIPS - 1} (a strip of the table in y, "
             f"from {START_Y_M[0]:.2f} to {START_Y_M[1]:.2f} m), got {strip!r}"

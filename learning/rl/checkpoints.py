@@ -157,10 +157,8 @@ def restore_run(trainer: "PPOTrainer", path: Path) -> None:
     trainer.torch_rng.set_state(payload["torch_rng"])
     stats = payload["stats"]
     for key in vars(trainer.stats):
-        # a checkpoint from before the replay split: its recent episodes count as the run's own room's; from
-        # before start strips were tracked: unknown strips (-1)
-        missing = -1 if key == "start_strips" else False
-        getattr(trainer.stats, key).extend(stats.get(key, [missing] * len(stats["successes"])))
+        missing = [trainer.stats.unknown(key)] * len(stats["successes"])  # a field newer than the checkpoint
+        getattr(trainer.stats, key).extend(stats.get(key, missing))
     trainer.timings = Timings(**payload["timings"])
     trainer.memory = PeakMemory(payload["peak_memory_bytes"])
     trainer.label_counts = payload.get("label_counts", trainer.label_counts)

@@ -28,6 +28,12 @@ class EpisodeStats:
     # curriculum is off, or the checkpoint is older)
     start_strips: deque = field(default_factory=lambda: deque(maxlen=100))
 
+    @staticmethod
+    def unknown(key: str) -> object:
+        """What a field holds for episodes stored before it was tracked (older checkpoints): -1 for start
+        strips; False for `replayed` (they count as the run's own room's)."""
+        return -1 if key == "start_strips" else False
+
     @classmethod
     def over_last(cls, episodes: int) -> "EpisodeStats":
         return cls(**{f.name: deque(maxlen=episodes) for f in fields(cls)})
